@@ -1,0 +1,652 @@
+"""The pursuit-evasion env: reset, step, events, masks, observations and rewards, two backends.
+
+Layout: struct-of-arrays over all N = P + E agents, pursuers first. Per-agent constants (radius,
+speed limits) are arrays built once in the constructor; `step` only indexes them. `jit` and `vmap`
+are applied by the caller.
+
+Backends (SPEC 2.2):
+  * ``"mjx"`` (default): the robots of `pe_mjx.scene` stepped by `mujoco.mjx`, `num_substeps`
+    physics steps per control step. Before each substep the velocity actuators get
+    ``(v cos psi_m, v sin psi_m, omega)`` with the heading psi_m at the middle of the substep
+    (midpoint rule: second-order accurate arcs; using the start heading drifts first-order).
+  * ``"kinematic"``: eq. (1) integrated exactly (constant v, omega over the step: an arc).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from pe_mjx import scene
+from pe_mjx.config import TEAMS, EnvConfig, TeamConfig, get_preset
+
+BACKENDS = ("mjx", "kinematic")
+
+# Incapacitation causes (World.cause). 0 means still active.
+ACTIVE, WALL, OBSTACLE, CAPTURE, TEAMMATE, OPPONENT = range(6)
+CAUSE_NAMES = {WALL: "wall", OBSTACLE: "obstacle", CAPTURE: "capture", TEAMMATE: "teammate"}
+CAUSE_NAMES[OPPONENT] = "opponent"
+
+OWN_FEATURES = 5
+AGENT_FEATURES = 6
+OBSTACLE_FEATURES = 4
+
+
+@struct.dataclass
+class World:
+    """The game state, for all N agents (pursuers first) of one arena."""
+
+    pos: jax.Array  # [N, 2] world x, y
+    yaw: jax.Array  # [N] heading in [-pi, pi)
+    vel: jax.Array  # [N, 2] world velocity at the end of the last step
+    active: jax.Array  # bool [N]
+    cause: jax.Array  # int32 [N], 0 while active, else the first incapacitation cause
+    distance: jax.Array  # [N] distance travelled this episode (sum of per-step displacements)
+    captures: jax.Array  # int32 [N]: pursuer -> evaders it captured; evader -> 1 if captured
+    obstacles: jax.Array  # [K, 3] x, y, radius
+    step: jax.Array  # int32 [] control steps taken this episode
+
+
+@struct.dataclass
+class State:
+    """One env state; everything `jit`/`vmap` sees (MuJoCo Playground layout)."""
+
+    world: World
+    physics: Any  # mjx.Data for the mjx backend, None for the kinematic one
+    obs: dict[str, dict[str, jax.Array]]
+    reward: dict[str, jax.Array]  # team -> [A]
+    done: jax.Array  # float32 []
+    metrics: dict[str, jax.Array]
+    info: dict[str, Any]
+
+
+def wrap_angle(a: jax.Array) -> jax.Array:
+    return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
+
+
+def action_table(team: TeamConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(v [n_actions], omega [n_actions]) of a team, paper eq. (2), 0-based.
+
+    Action index = n_v * N_omega + n_omega.
+    """
+    speeds = np.linspace(0.0, team.max_speed, team.num_speeds)
+    if team.num_turn_rates == 1:
+        rates = np.zeros(1)
+    else:
+        rates = np.linspace(-team.max_turn_rate, team.max_turn_rate, team.num_turn_rates)
+    v = np.repeat(speeds, team.num_turn_rates)
+    w = np.tile(rates, team.num_speeds)
+    return v.astype(np.float32), w.astype(np.float32)
+
+
+def arc_offsets(v: np.ndarray, w: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Displacement in the heading frame (forward, left) after each time: [n_actions, T, 2]."""
+    v, w, t = v[:, None].astype(np.float64), w[:, None].astype(np.float64), times[None, :]
+    small = np.abs(w) < 1e-9
+    w_safe = np.where(small, 1.0, w)
+    fwd = np.where(small, v * t, v * np.sin(w * t) / w_safe)
+    left = np.where(small, 0.0, v * (1 - np.cos(w * t)) / w_safe)
+    return np.stack([fwd, left], axis=-1).astype(np.float32)
+
+
+def collision_reward(gap: jax.Array, collision: float, danger: float) -> jax.Array:
+    """f_c of paper III-C: r_c at contact, r_c (d - x) / (d + x) inside d_danger, else 0."""
+    inside = collision * (danger - gap) / (danger + jnp.maximum(gap, 0.0))
+    return jnp.where(gap <= 0, collision, jnp.where(gap <= danger, inside, 0.0))
+
+
+class PursuitEvasionEnv:
+    """Multi-pursuer multi-evader pursuit-evasion under collision avoidance (SPEC 2)."""
+
+    def __init__(self, config: EnvConfig, backend: str = "mjx"):
+        if backend not in BACKENDS:
+            raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
+        self.config = config
+        self.backend = backend
+        p, e = config.pursuer.num_agents, config.evader.num_agents
+        self.num_pursuers, self.num_evaders = p, e
+        self.num_agents = p + e
+        self.num_obstacles = config.arena.num_obstacles
+        self.team_slices = {"pursuer": slice(0, p), "evader": slice(p, p + e)}
+
+        def per_agent(attr: str) -> np.ndarray:
+            values = [getattr(config.pursuer, attr)] * p + [getattr(config.evader, attr)] * e
+            return np.asarray(values, dtype=np.float32)
+
+        self._radius = per_agent("radius")
+        self._max_speed = per_agent("max_speed")
+        self._is_pursuer = np.arange(p + e) < p
+        self._same_team = self._is_pursuer[:, None] == self._is_pursuer[None, :]
+        # Teammate index table: row i lists the other members of i's team (global indices).
+        self._teammates = {}
+        for team in TEAMS:
+            idx = np.arange(self.num_agents)[self.team_slices[team]]
+            self._teammates[team] = np.stack([np.delete(idx, k) for k in range(len(idx))])
+        self._actions = {t: action_table(config.team(t)) for t in TEAMS}
+        times = config.mask_horizon * np.arange(1, config.mask_points + 1) / config.mask_points
+        self._mask_offsets = {t: arc_offsets(*self._actions[t], times) for t in TEAMS}
+        self._static_mask = {t: self._turning_mask(config.team(t)) for t in TEAMS}
+        self._stop_mask = {t: self._stop_actions(config.team(t)) for t in TEAMS}
+        if backend == "mjx":
+            from mujoco import mjx
+
+            self.mj_model = scene.build_model(config, layout=None, visual=False)
+            self.mjx_model = mjx.put_model(self.mj_model)
+            self._mjx_data0 = mjx.make_data(self.mjx_model)
+        else:
+            self.mj_model = None
+            self.mjx_model = None
+
+    # ----------------------------------------------------------------- public surface
+
+    def num_actions(self, team: str) -> int:
+        return self.config.team(team).num_actions
+
+    def poses(self, state: State) -> dict[str, jax.Array]:
+        """{"pursuer": [P, 3], "evader": [E, 3]}: x, y, yaw."""
+        w = state.world
+        pose = jnp.concatenate([w.pos, w.yaw[..., None]], axis=-1)
+        return {t: pose[..., s, :] for t, s in self.team_slices.items()}
+
+    def obstacles(self, state: State) -> jax.Array:
+        """[K, 3]: x, y, radius."""
+        return state.world.obstacles
+
+    def active(self, state: State) -> dict[str, jax.Array]:
+        """{"pursuer": bool [P], "evader": bool [E]}."""
+        return {t: state.world.active[..., s] for t, s in self.team_slices.items()}
+
+    def split(self, x: jax.Array) -> dict[str, jax.Array]:
+        """Splits an [..., N, ...] per-agent array on axis -1 into teams."""
+        return {t: x[..., s] for t, s in self.team_slices.items()}
+
+    # ----------------------------------------------------------------- reset
+
+    def reset(self, rng: jax.Array) -> State:
+        """Draws a fresh arena from `rng` (obstacles, poses) and returns its first state."""
+        rng, place_rng = jax.random.split(rng)
+        obstacles, agent_pos, yaw, placed_ok = self._place(place_rng)
+        n = self.num_agents
+        world = World(
+            pos=agent_pos,
+            yaw=yaw,
+            vel=jnp.zeros((n, 2)),
+            active=jnp.ones(n, dtype=bool),
+            cause=jnp.zeros(n, dtype=jnp.int32),
+            distance=jnp.zeros(n),
+            captures=jnp.zeros(n, dtype=jnp.int32),
+            obstacles=obstacles,
+            step=jnp.zeros((), dtype=jnp.int32),
+        )
+        physics = None
+        if self.backend == "mjx":
+            qpos = jnp.concatenate([agent_pos, yaw[:, None]], axis=1).reshape(-1)
+            physics = self._mjx_data0.replace(qpos=qpos, qvel=jnp.zeros_like(qpos))
+        zeros = {t: jnp.zeros(self.config.team(t).num_agents) for t in TEAMS}
+        valid = {t: jnp.ones(self.config.team(t).num_agents, dtype=bool) for t in TEAMS}
+        metrics = self._metrics(world, self._zero_terms())
+        info = {
+            "rng": rng,
+            "truncation": jnp.zeros(()),
+            "terminated": jnp.zeros((), dtype=bool),
+            "valid": valid,
+            "placement_ok": placed_ok,
+        }
+        return State(
+            world=world,
+            physics=physics,
+            obs=self._observe(world),
+            reward=zeros,
+            done=jnp.zeros(()),
+            metrics=metrics,
+            info=info,
+        )
+
+    def reset_to(
+        self,
+        pursuer: jax.Array,
+        evader: jax.Array,
+        obstacles: jax.Array,
+        rng: jax.Array | None = None,
+    ) -> State:
+        """A first state with hand-placed poses ([P, 3], [E, 3]: x, y, yaw) and obstacles [K, 3].
+
+        For tests, replays and scripted scenarios; no overlap check is made.
+        """
+        state = self.reset(jax.random.key(0) if rng is None else rng)
+        pursuer, evader = jnp.asarray(pursuer, jnp.float32), jnp.asarray(evader, jnp.float32)
+        obstacles = jnp.asarray(obstacles, jnp.float32).reshape(self.num_obstacles, 3)
+        poses = jnp.concatenate([pursuer, evader], axis=0)
+        if poses.shape != (self.num_agents, 3):
+            raise ValueError(
+                f"reset_to: expected pursuer [{self.num_pursuers}, 3] and evader "
+                f"[{self.num_evaders}, 3] poses, got {pursuer.shape} and {evader.shape}"
+            )
+        world = state.world.replace(pos=poses[:, :2], yaw=wrap_angle(poses[:, 2]), obstacles=obstacles)
+        physics = state.physics
+        if physics is not None:
+            physics = physics.replace(qpos=poses.reshape(-1))
+        return state.replace(world=world, physics=physics, obs=self._observe(world))
+
+    def _place(self, rng: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+        """Random sequential placement: obstacles, then agents; first valid candidate wins.
+
+        Returns obstacles [K, 3], agent positions [N, 2], headings [N], and whether every entity
+        found a candidate with the required clearance (always true for configs that pass the
+        density check in `EnvConfig`, up to a vanishing probability).
+        """
+        a = self.config.arena
+        k, n = self.num_obstacles, self.num_agents
+        total = k + n
+        rng_r, rng_yaw, rng_c = jax.random.split(rng, 3)
+        obstacle_r = jax.random.uniform(
+            rng_r, (k,), minval=a.obstacle_radius_min, maxval=a.obstacle_radius_max
+        )
+        radii = jnp.concatenate([obstacle_r, jnp.asarray(self._radius)])
+        m = a.spawn_candidates
+        u = jax.random.uniform(rng_c, (total, m, 2))
+        clear = a.spawn_clearance
+
+        def body(i, carry):
+            pos, ok = carry
+            r = radii[i]
+            rho = (a.radius - r - clear) * jnp.sqrt(u[i, :, 0])
+            phi = 2 * jnp.pi * u[i, :, 1]
+            cand = jnp.stack([rho * jnp.cos(phi), rho * jnp.sin(phi)], axis=-1)  # [M, 2]
+            dist = jnp.linalg.norm(cand[:, None, :] - pos[None, :, :], axis=-1)  # [M, T]
+            gap = dist - r - radii[None, :]
+            placed = jnp.arange(total) < i
+            min_gap = jnp.min(jnp.where(placed[None, :], gap, jnp.inf), axis=1)  # [M]
+            good = min_gap >= clear
+            choice = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmax(min_gap))
+            pos = pos.at[i].set(cand[choice])
+            return pos, ok & jnp.any(good)
+
+        pos0 = jnp.zeros((total, 2))
+        pos, ok = jax.lax.fori_loop(0, total, body, (pos0, jnp.ones((), dtype=bool)))
+        obstacles = jnp.concatenate([pos[:k], obstacle_r[:, None]], axis=1)
+        yaw = jax.random.uniform(rng_yaw, (n,), minval=-jnp.pi, maxval=jnp.pi)
+        return obstacles, pos[k:], yaw, ok
+
+    # ----------------------------------------------------------------- step
+
+    def step(self, state: State, actions: dict[str, jax.Array]) -> State:
+        """One control step: move, then events (wall, obstacle, capture, agent), then rewards.
+
+        Args:
+          state: the current state.
+          actions: {"pursuer": int32 [P], "evader": int32 [E]} action indices.
+        """
+        cfg = self.config
+        w = state.world
+        was_active = w.active
+        v_p, w_p = (jnp.asarray(t)[actions["pursuer"]] for t in self._actions["pursuer"])
+        v_e, w_e = (jnp.asarray(t)[actions["evader"]] for t in self._actions["evader"])
+        speed = jnp.where(was_active, jnp.concatenate([v_p, v_e]), 0.0)
+        turn = jnp.where(was_active, jnp.concatenate([w_p, w_e]), 0.0)
+
+        if self.backend == "mjx":
+            pos, yaw, vel, physics = self._integrate_mjx(state.physics, speed, turn)
+        else:
+            pos, yaw, vel = self._integrate_kinematic(w.pos, w.yaw, speed, turn)
+            physics = None
+        # Incapacitated agents never move again (exactly, whatever the actuator lag).
+        pos = jnp.where(was_active[:, None], pos, w.pos)
+        yaw = jnp.where(was_active, yaw, w.yaw)
+
+        events = self._events(pos, was_active, w.obstacles)
+        active, cause = events["active"], jnp.where(w.cause > 0, w.cause, events["cause"])
+        vel = jnp.where(active[:, None], vel, 0.0)
+        if physics is not None:
+            qpos = jnp.concatenate([pos, yaw[:, None]], axis=1).reshape(-1)
+            qvel = jnp.concatenate([vel, jnp.zeros((self.num_agents, 1))], axis=1)
+            qvel = jnp.where(active[:, None], physics.qvel.reshape(-1, 3), qvel).reshape(-1)
+            physics = physics.replace(qpos=jnp.where(jnp.repeat(was_active, 3), physics.qpos, qpos))
+            physics = physics.replace(qvel=qvel)
+
+        step_count = w.step + 1
+        world = World(
+            pos=pos,
+            yaw=yaw,
+            vel=vel,
+            active=active,
+            cause=cause,
+            distance=w.distance + jnp.linalg.norm(pos - w.pos, axis=-1),
+            captures=w.captures + events["new_captures"],
+            obstacles=w.obstacles,
+            step=step_count,
+        )
+        terms = self._reward_terms(pos, was_active, active, events["capture_pairs"], w.obstacles)
+        reward = {}
+        for team, names in (
+            ("pursuer", ("wall", "obstacle", "teammate", "pursuit", "capture", "opponent")),
+            ("evader", ("wall", "obstacle", "teammate", "opponent", "alive")),
+        ):
+            total = sum(terms[team][name] for name in names)
+            reward[team] = jnp.where(self.split(was_active)[team], total, 0.0)
+        p_alive = jnp.any(active[: self.num_pursuers])
+        e_alive = jnp.any(active[self.num_pursuers :])
+        terminated = ~(p_alive & e_alive)
+        truncated = (step_count >= cfg.max_steps) & ~terminated
+        done = (terminated | truncated).astype(jnp.float32)
+        info = dict(state.info)
+        info.update(
+            truncation=truncated.astype(jnp.float32),
+            terminated=terminated,
+            valid=self.split(was_active),
+        )
+        return State(
+            world=world,
+            physics=physics,
+            obs=self._observe(world),
+            reward=reward,
+            done=done,
+            metrics=self._metrics(world, terms, self.split(was_active)),
+            info=info,
+        )
+
+    def _integrate_kinematic(
+        self, pos: jax.Array, yaw: jax.Array, speed: jax.Array, turn: jax.Array
+    ) -> tuple[jax.Array, jax.Array, jax.Array]:
+        dt = self.config.control_dt
+        small = jnp.abs(turn) < 1e-9
+        safe = jnp.where(small, 1.0, turn)
+        new_yaw = yaw + turn * dt
+        dx = jnp.where(small, speed * dt * jnp.cos(yaw), speed * (jnp.sin(new_yaw) - jnp.sin(yaw)) / safe)
+        dy = jnp.where(small, speed * dt * jnp.sin(yaw), speed * (jnp.cos(yaw) - jnp.cos(new_yaw)) / safe)
+        new_yaw = wrap_angle(new_yaw)
+        vel = speed[:, None] * jnp.stack([jnp.cos(new_yaw), jnp.sin(new_yaw)], axis=-1)
+        return pos + jnp.stack([dx, dy], axis=-1), new_yaw, vel
+
+    def _integrate_mjx(
+        self, data: Any, speed: jax.Array, turn: jax.Array
+    ) -> tuple[jax.Array, jax.Array, jax.Array, Any]:
+        from mujoco import mjx
+
+        half_dt = 0.5 * self.config.physics_dt
+
+        def substep(d, _):
+            psi = d.qpos[2::3] + turn * half_dt
+            ctrl = jnp.stack([speed * jnp.cos(psi), speed * jnp.sin(psi), turn], axis=1)
+            return mjx.step(self.mjx_model, d.replace(ctrl=ctrl.reshape(-1))), None
+
+        data, _ = jax.lax.scan(substep, data, None, length=self.config.num_substeps)
+        q = data.qpos.reshape(-1, 3)
+        vel = data.qvel.reshape(-1, 3)[:, :2]
+        return q[:, :2], wrap_angle(q[:, 2]), vel, data
+
+    # ----------------------------------------------------------------- events
+
+    def _events(self, pos: jax.Array, was_active: jax.Array, obstacles: jax.Array) -> dict:
+        """SPEC 2.3 in order: wall, obstacle, capture, agent-agent collision."""
+        cfg = self.config
+        p = self.num_pursuers
+        r = jnp.asarray(self._radius)
+        cause = jnp.zeros(self.num_agents, dtype=jnp.int32)
+        active = was_active
+        # 1. wall
+        hit = active & (jnp.linalg.norm(pos, axis=-1) + r >= cfg.arena.radius)
+        cause, active = jnp.where(hit, WALL, cause), active & ~hit
+        # 2. obstacles
+        if self.num_obstacles:
+            d_obs = jnp.linalg.norm(pos[:, None, :] - obstacles[None, :, :2], axis=-1)
+            gap_obs = d_obs - r[:, None] - obstacles[None, :, 2]
+            hit = active & jnp.any(gap_obs <= 0, axis=1)
+            cause, active = jnp.where(hit, OBSTACLE, cause), active & ~hit
+        # 3. capture: active pursuer and active evader within epsilon
+        dist = jnp.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1)
+        pairs = (dist[:p, p:] <= cfg.capture_eps) & active[:p, None] & active[None, p:]
+        captured = jnp.concatenate([jnp.any(pairs, axis=1), jnp.any(pairs, axis=0)])
+        cause, active = jnp.where(captured, CAPTURE, cause), active & ~captured
+        new_captures = jnp.concatenate(
+            [jnp.sum(pairs, axis=1), jnp.any(pairs, axis=0).astype(jnp.int32)]
+        ).astype(jnp.int32)
+        # 4. any other touching pair involving an agent still active
+        gap = dist - r[:, None] - r[None, :]
+        touching = (gap <= 0) & ~jnp.eye(self.num_agents, dtype=bool)
+        hit_team = active & jnp.any(touching & self._same_team, axis=1)
+        hit_opp = active & jnp.any(touching & ~self._same_team, axis=1)
+        cause = jnp.where(hit_team, TEAMMATE, jnp.where(hit_opp, OPPONENT, cause))
+        active = active & ~(hit_team | hit_opp)
+        return {
+            "active": active,
+            "cause": cause,
+            "capture_pairs": pairs,
+            "new_captures": new_captures,
+        }
+
+    # ----------------------------------------------------------------- rewards
+
+    def _zero_terms(self) -> dict[str, dict[str, jax.Array]]:
+        p, e = self.num_pursuers, self.num_evaders
+        z = {"pursuer": jnp.zeros(p), "evader": jnp.zeros(e)}
+        names = {
+            "pursuer": ("wall", "obstacle", "teammate", "pursuit", "capture", "opponent"),
+            "evader": ("wall", "obstacle", "teammate", "opponent", "alive"),
+        }
+        return {t: {n: z[t] for n in names[t]} for t in TEAMS}
+
+    def _reward_terms(
+        self,
+        pos: jax.Array,
+        was_active: jax.Array,
+        active: jax.Array,
+        capture_pairs: jax.Array,
+        obstacles: jax.Array,
+    ) -> dict[str, dict[str, jax.Array]]:
+        """Every term of eqs. (3) and (4), per agent, before masking by `was_active`."""
+        cfg, rc = self.config, self.config.reward
+        p = self.num_pursuers
+        r = jnp.asarray(self._radius)
+
+        def fc(gap):
+            return collision_reward(gap, rc.collision, rc.danger_distance)
+
+        wall = fc(cfg.arena.radius - jnp.linalg.norm(pos, axis=-1) - r)
+        if self.num_obstacles:
+            d_obs = jnp.linalg.norm(pos[:, None, :] - obstacles[None, :, :2], axis=-1)
+            obstacle = jnp.sum(fc(d_obs - r[:, None] - obstacles[None, :, 2]), axis=1)
+        else:
+            obstacle = jnp.zeros(self.num_agents)
+        dist = jnp.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1)
+        pair_fc = fc(dist - r[:, None] - r[None, :])
+        not_self = ~jnp.eye(self.num_agents, dtype=bool)
+        teammate = jnp.sum(jnp.where(self._same_team & not_self, pair_fc, 0.0), axis=1)
+        # Pursuer-evader terms, f_p of eq. (3).
+        evader_active = active[None, p:]
+        shaping = rc.pursuit_scale / jnp.maximum(dist[:p, p:], rc.capture_distance)
+        pursuit = jnp.sum(jnp.where(evader_active, shaping, 0.0), axis=1)
+        capture = jnp.sum(jnp.where(capture_pairs, rc.capture, 0.0), axis=1)
+        inactive_other = ~evader_active & ~capture_pairs
+        pursuer_opp = jnp.sum(jnp.where(inactive_other, pair_fc[:p, p:], 0.0), axis=1)
+        evader_opp = jnp.sum(pair_fc[p:, :p], axis=1)
+        alive = jnp.where(active[p:], rc.evader_alive, 0.0)
+        return {
+            "pursuer": {
+                "wall": wall[:p],
+                "obstacle": obstacle[:p],
+                "teammate": teammate[:p],
+                "pursuit": pursuit,
+                "capture": capture,
+                "opponent": pursuer_opp,
+            },
+            "evader": {
+                "wall": wall[p:],
+                "obstacle": obstacle[p:],
+                "teammate": teammate[p:],
+                "opponent": evader_opp,
+                "alive": alive,
+            },
+        }
+
+    def _metrics(
+        self,
+        world: World,
+        terms: dict[str, dict[str, jax.Array]],
+        valid: dict[str, jax.Array] | None = None,
+    ) -> dict[str, jax.Array]:
+        """Scalars: `reward/<team>/<term>` summed over the team this step, `episode/*` so far."""
+        metrics = {}
+        for team, team_terms in terms.items():
+            for name, value in team_terms.items():
+                if valid is not None:
+                    value = jnp.where(valid[team], value, 0.0)
+                metrics[f"reward/{team}/{name}"] = jnp.sum(value)
+        p = self.num_pursuers
+        for team, s in self.team_slices.items():
+            cause = world.cause[s]
+            for code, name in CAUSE_NAMES.items():
+                metrics[f"episode/{team}_{name}"] = jnp.sum(cause == code).astype(jnp.float32)
+            metrics[f"episode/{team}_distance"] = jnp.mean(world.distance[s])
+        metrics["episode/captures"] = jnp.sum(world.captures[p:]).astype(jnp.float32)
+        metrics["episode/success_rate"] = jnp.mean(~world.active[p:])
+        metrics["episode/pursuit_cost"] = jnp.sum(~world.active[:p]).astype(jnp.float32)
+        metrics["episode/length"] = world.step.astype(jnp.float32)
+        return metrics
+
+    # ----------------------------------------------------------------- observations
+
+    def _observe(self, world: World) -> dict[str, dict[str, jax.Array]]:
+        """Heading-frame observations (SPEC 2.5) and action masks (2.4), per team."""
+        R = self.config.arena.radius
+        pos, yaw = world.pos, world.yaw
+        c, s = jnp.cos(yaw), jnp.sin(yaw)
+        vmax = jnp.asarray(self._max_speed)
+        flag = (~world.active).astype(jnp.float32)
+
+        def to_heading(vec):  # vec [N, M, 2] world -> heading frame of row agent
+            x = c[:, None] * vec[..., 0] + s[:, None] * vec[..., 1]
+            y = -s[:, None] * vec[..., 0] + c[:, None] * vec[..., 1]
+            return x, y
+
+        def polar(vec):
+            x, y = to_heading(vec)
+            d = jnp.sqrt(x**2 + y**2)
+            safe = jnp.where(d > 0, d, 1.0)
+            return d, jnp.where(d > 0, x / safe, 1.0), jnp.where(d > 0, y / safe, 0.0)
+
+        d_o, cos_o, sin_o = polar(-pos[:, None, :])
+        speed = jnp.sum(world.vel * jnp.stack([c, s], axis=-1), axis=-1)
+        own = jnp.stack([flag, d_o[:, 0] / R, cos_o[:, 0], sin_o[:, 0], speed / vmax], axis=-1)
+
+        d, cos_b, sin_b = polar(pos[None, :, :] - pos[:, None, :])
+        vx, vy = to_heading(jnp.broadcast_to(world.vel[None], (self.num_agents, self.num_agents, 2)))
+        agents = jnp.stack(
+            [
+                jnp.broadcast_to(flag[None, :], d.shape),
+                d / R,
+                cos_b,
+                sin_b,
+                vx / vmax[:, None],
+                vy / vmax[:, None],
+            ],
+            axis=-1,
+        )  # [N, N, 6]
+        k = self.num_obstacles
+        d_k, cos_k, sin_k = polar(world.obstacles[None, :, :2] - pos[:, None, :])
+        obst = jnp.stack(
+            [d_k / R, cos_k, sin_k, jnp.broadcast_to(world.obstacles[None, :, 2] / R, d_k.shape)],
+            axis=-1,
+        ).reshape(self.num_agents, k, OBSTACLE_FEATURES)
+
+        obs = {}
+        for team in TEAMS:
+            sl = self.team_slices[team]
+            other = self.team_slices["evader" if team == "pursuer" else "pursuer"]
+            rows = np.arange(self.num_agents)[sl]
+            mates = agents[rows[:, None], self._teammates[team]]
+            opps = agents[sl, other]
+            a = len(rows)
+            obs[team] = {
+                "own": own[sl],
+                "teammates": mates,
+                "opponents": opps,
+                "obstacles": obst[sl],
+                "teammate_mask": jnp.ones(mates.shape[:2], dtype=bool),
+                "opponent_mask": jnp.ones(opps.shape[:2], dtype=bool),
+                "obstacle_mask": jnp.ones((a, k), dtype=bool),
+                "action_mask": self._action_mask(team, pos[sl], yaw[sl], world.obstacles),
+            }
+        return obs
+
+    # ----------------------------------------------------------------- action masks
+
+    @staticmethod
+    def _turning_mask(team: TeamConfig) -> np.ndarray:
+        """Minimum turning radius (paper V): mask v / |omega| < R_min; v = 0 keeps omega ~ 0."""
+        v, w = action_table(team)
+        ok = np.ones(team.num_actions, dtype=bool)
+        if team.min_turning_radius > 0:
+            moving = v > 0
+            with np.errstate(divide="ignore"):
+                radius = np.where(np.abs(w) > 0, v / np.abs(w), np.inf)
+            ok = np.where(moving, radius >= team.min_turning_radius, np.abs(w) == np.abs(w).min())
+        return ok
+
+    def _stop_actions(self, team: TeamConfig) -> np.ndarray:
+        v, _ = action_table(team)
+        return (v == 0) & self._turning_mask(team)
+
+    def _action_mask(
+        self, team: str, pos: jax.Array, yaw: jax.Array, obstacles: jax.Array
+    ) -> jax.Array:
+        """bool [A, n_actions]: False where the look-ahead arc hits the wall or an obstacle."""
+        team_cfg = self.config.team(team)
+        offs = jnp.asarray(self._mask_offsets[team])  # [n_actions, T, 2] (forward, left)
+        c, s = jnp.cos(yaw)[:, None, None], jnp.sin(yaw)[:, None, None]
+        x = pos[:, None, None, 0] + c * offs[None, ..., 0] - s * offs[None, ..., 1]
+        y = pos[:, None, None, 1] + s * offs[None, ..., 0] + c * offs[None, ..., 1]
+        r = team_cfg.radius
+        bad = jnp.sqrt(x**2 + y**2) + r >= self.config.arena.radius  # [A, n_actions, T]
+        if self.num_obstacles:
+            dx = x[..., None] - obstacles[:, 0]
+            dy = y[..., None] - obstacles[:, 1]
+            gap = jnp.sqrt(dx**2 + dy**2) - r - obstacles[:, 2]
+            bad = bad | jnp.any(gap <= 0, axis=-1)
+        mask = ~jnp.any(bad, axis=-1) & jnp.asarray(self._static_mask[team])[None, :]
+        # Already touching (all masked): leave the stop actions, so something stays valid.
+        stop = jnp.asarray(self._stop_mask[team])[None, :]
+        return jnp.where(jnp.any(mask, axis=1, keepdims=True), mask, stop)
+
+
+class AutoResetWrapper:
+    """Resets finished arenas with a *fresh* draw from the state's rng (not a cached first state).
+
+    The returned state keeps the finished step's reward, done, metrics and truncation flag, while
+    its world, physics and observations belong to the new episode. Works per env; `vmap` it.
+    """
+
+    def __init__(self, env: PursuitEvasionEnv):
+        self.env = env
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.env, name)
+
+    def reset(self, rng: jax.Array) -> State:
+        return self.env.reset(rng)
+
+    def step(self, state: State, actions: dict[str, jax.Array]) -> State:
+        stepped = self.env.step(state, actions)
+        rng, reset_rng = jax.random.split(stepped.info["rng"])
+        fresh = self.env.reset(reset_rng)
+        done = stepped.done > 0
+
+        def pick(new, old):
+            return jnp.where(done, new, old)
+
+        world = jax.tree.map(pick, fresh.world, stepped.world)
+        physics = jax.tree.map(pick, fresh.physics, stepped.physics)
+        obs = jax.tree.map(pick, fresh.obs, stepped.obs)
+        info = dict(stepped.info)
+        info["rng"] = rng
+        return stepped.replace(world=world, physics=physics, obs=obs, info=info)
+
+
+def make(name_or_config: str | EnvConfig = "20-5-8", backend: str = "mjx") -> PursuitEvasionEnv:
+    """Builds an env from a preset name or an `EnvConfig`."""
+    config = get_preset(name_or_config) if isinstance(name_or_config, str) else name_or_config
+    return PursuitEvasionEnv(config, backend=backend)
