@@ -10,6 +10,7 @@ from typing import Annotated
 import tyro
 
 from pe_mjx.config import PRESETS
+from pe_mjx.ppo.config import TrainConfig
 
 
 def _fail(message: str) -> None:
@@ -47,6 +48,48 @@ class DemoArgs:
     """Control steps at most (the episode may end earlier)."""
 
 
+@dataclasses.dataclass(frozen=True)
+class TrainArgs:
+    """Train a pursuer and an evader policy together (IPPO co-evolution), or one against a fixed
+    opponent. Logs to <out>/tb (TensorBoard), checkpoints to <out>/checkpoints."""
+
+    config: Annotated[TrainConfig, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=TrainConfig
+    )
+    out: Path | None = None
+    """Run directory (default: runs/<pursuer_encoder>-<preset>)."""
+    resume: Path | None = None
+    """Continue the run in this directory where it stopped (its saved config is used; a
+    non-default --env-steps extends the budget)."""
+    stop_after: int | None = None
+    """Stop (with a checkpoint) after this many iterations; resume later with --resume."""
+    progress: bool = True
+    """Show the progress bar."""
+
+
+def run_train(args: TrainArgs) -> None:
+    from pe_mjx.ppo.checkpoint import CheckpointError
+    from pe_mjx.ppo.run import resume_config, train
+
+    try:
+        if args.resume is not None:
+            budget = args.config.env_steps
+            config = resume_config(
+                args.resume, None if budget == TrainConfig().env_steps else budget
+            )
+            out = args.resume
+        else:
+            config = args.config
+            out = args.out or Path("runs") / f"{config.pursuer_encoder}-{config.preset}"
+        _, state = train(
+            config, out, resume=args.resume is not None, progress=args.progress,
+            stop_after=args.stop_after,
+        )
+    except CheckpointError as err:
+        _fail(str(err))
+    print(f"run {out}: {int(state.env_steps):,} env steps, iteration {int(state.iteration)}")
+
+
 def run_scene(args: SceneArgs) -> None:
     _check_preset(args.preset)
     if args.output.exists() and not args.force:
@@ -75,6 +118,7 @@ def main(argv: list[str] | None = None) -> None:
     commands = {
         "scene": (SceneArgs, run_scene),
         "demo": (DemoArgs, run_demo),
+        "train": (TrainArgs, run_train),
     }
     subcommands = {name: cls for name, (cls, _) in commands.items()}
     args = tyro.extras.subcommand_cli_from_dict(subcommands, args=argv, prog="pe-mjx")

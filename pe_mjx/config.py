@@ -5,14 +5,35 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import typing
 from typing import Any
 
 TEAMS = ("pursuer", "evader")
+ENCODERS = ("mix", "mean", "birnn", "mlp")
+
 
 
 def _check(cond: bool, field: str, msg: str) -> None:
     if not cond:
         raise ValueError(f"invalid config: {field} {msg}")
+
+
+def _check_types(cls: type, values: dict[str, Any], prefix: str) -> None:
+    """Loaded (JSON) values must have their field's scalar type: no strings for numbers."""
+    hints = typing.get_type_hints(cls)
+    for name, value in values.items():
+        allowed = typing.get_args(hints.get(name)) or (hints.get(name),)
+        if value is None and type(None) in allowed:
+            continue
+        if float in allowed:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        elif int in allowed:
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif str in allowed:
+            ok = isinstance(value, str)
+        else:
+            continue
+        _check(ok, f"{prefix}{name}", f"has the wrong type: {value!r}")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -248,10 +269,18 @@ class EnvConfig:
                 bad = set(value) - sub_names
                 if bad:
                     raise ValueError(f"invalid config: unknown fields {key}.{sorted(bad)}")
-                kwargs[key] = sub[key](**value)
+                _check_types(sub[key], value, f"{key}.")
+                try:
+                    kwargs[key] = sub[key](**value)
+                except TypeError as err:  # a missing field
+                    raise ValueError(f"invalid config: {key}: {err}") from None
             else:
                 kwargs[key] = value
-        return cls(**kwargs)
+        _check_types(cls, {k: v for k, v in kwargs.items() if k not in sub}, "")
+        try:
+            return cls(**kwargs)
+        except TypeError as err:
+            raise ValueError(f"invalid config: {err}") from None
 
 
 def _paper(pursuers: int, evaders: int, obstacles: int, arena_radius: float = 5.0) -> EnvConfig:

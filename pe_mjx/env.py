@@ -194,6 +194,7 @@ class PursuitEvasionEnv:
             "truncation": jnp.zeros(()),
             "terminated": jnp.zeros((), dtype=bool),
             "valid": valid,
+            "active": valid,
             "placement_ok": placed_ok,
         }
         return State(
@@ -338,6 +339,7 @@ class PursuitEvasionEnv:
             truncation=truncated.astype(jnp.float32),
             terminated=terminated,
             valid=self.split(was_active),
+            active=self.split(active),
         )
         return State(
             world=world,

@@ -1,0 +1,339 @@
+"""Hand-written policies for both teams (scripted pursuit and evasion, uniform random) and their registry.
+
+Every policy has the signature a learned policy has::
+
+    policy(obs: dict[str, jax.Array], rng: jax.Array) -> int32 [A]
+
+where ``obs`` is ONE team's observation dict for one arena (``state.obs[team]``, SPEC 2.5):
+``own [A, 5]``, ``teammates [A, T, 6]``, ``opponents [A, O, 6]``, ``obstacles [A, K, 4]``, the
+validity masks ``teammate_mask [A, T]``, ``opponent_mask [A, O]``, ``obstacle_mask [A, K]`` and
+``action_mask bool [A, n_actions]``. Policies are pure and jittable; ``jax.vmap`` them over arenas.
+They are decentralised: each agent uses only its own observation row plus static config (arena
+radius to undo the distance normalisation, its team's action table, the control step), and they only
+ever return actions whose ``action_mask`` entry is True.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pe_mjx.config import TEAMS, EnvConfig
+from pe_mjx.env import action_table, arc_offsets
+
+Policy = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
+"""(obs of one team in one arena, rng) -> int32 [A] action indices."""
+
+
+# ----------------------------------------------------------------------------- geometry helpers
+
+
+def _entities(
+    feats: jax.Array, valid: jax.Array, arena_radius: float, max_speed: float
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Decodes other-agent features of one observer.
+
+    Args:
+      feats: [M, 6] rows ``[g, d/R, cos, sin, vx/vmax, vy/vmax]`` in the observer's heading frame.
+      valid: bool [M] entity-validity mask (padding is False).
+      arena_radius: R, the distance normaliser.
+      max_speed: the observer's own v_max, the velocity normaliser.
+
+    Returns:
+      pos [M, 2] and vel [M, 2] in metres (per second) in the heading frame, and ``active`` bool
+      [M] (valid and flag g = 0).
+    """
+    dist = feats[:, 1] * arena_radius
+    pos = dist[:, None] * feats[:, 2:4]
+    vel = feats[:, 4:6] * max_speed
+    active = valid & (feats[:, 0] < 0.5)
+    return pos, vel, active
+
+
+def _gap(points: jax.Array, centres: jax.Array, radii: jax.Array | float) -> jax.Array:
+    """Surface gap between circles at ``points [..., 2]`` and ``centres [M, 2]``: [..., M]."""
+    d = jnp.linalg.norm(points[..., None, :] - centres, axis=-1)
+    return d - radii
+
+
+def _masked_argmin(cost: jax.Array, action_mask: jax.Array) -> jax.Array:
+    """argmin over valid actions of one agent: ``cost [n]``, ``action_mask bool [n]`` -> int32 []."""
+    return jnp.argmin(jnp.where(action_mask, cost, jnp.inf)).astype(jnp.int32)
+
+
+def _end_points(config: EnvConfig, team: str, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each action's arc in the heading frame at ``times``: ([n, len(times), 2], |omega| [n])."""
+    v, w = action_table(config.team(team))
+    return arc_offsets(v, w, np.asarray(times, dtype=np.float64)), np.abs(w)
+
+
+# ----------------------------------------------------------------------------- scripted pursuer
+
+
+def scripted_pursuer(
+    config: EnvConfig,
+    *,
+    crowd_penalty: float | None = None,
+    lead_time: float = 1.0,
+    danger_distance: float | None = None,
+    danger_weight: float = 4.0,
+) -> Policy:
+    """Target assignment plus pure pursuit through the action mask.
+
+    Each pursuer, from its own observation only:
+
+    1. **Assignment.** For every active evader e it counts the active teammates that are closer to e
+       than itself (teammate-to-evader vectors follow from the relative positions it observes). With
+       quota ``q = ceil(active pursuers / active evaders)``, every teammate beyond ``q - 1`` that is
+       closer adds ``crowd_penalty`` metres to e's score; the score is the distance to e plus that
+       penalty, and the pursuer targets the evader with the lowest score. The pursuers spread over
+       the evaders without talking to each other.
+    2. **Pursuit.** The target point is the evader's position led by its observed velocity for
+       ``min(distance / v_max, lead_time)`` seconds. Among the actions allowed by ``action_mask``,
+       the pursuer takes the one whose arc end point after ``control_dt`` lies closest to the target,
+       plus ``danger_weight`` times how deep (in units of the danger distance) the end point gets
+       into the danger zone of a teammate (predicted one step ahead by its observed velocity) or of an
+       incapacitated agent (a static obstacle).
+    3. With no active evader it stops (the valid action with the least speed and turn).
+
+    Args:
+      config: the game; uses the arena radius, the pursuer team's action table and ``control_dt``.
+      crowd_penalty: metres added per excess closer teammate; default: the arena radius.
+      lead_time: cap, in seconds, of the target's velocity lead.
+      danger_distance: gap in metres below which teammates repel; default ``reward.danger_distance``.
+      danger_weight: weight of the repulsion, in metres per danger-distance of intrusion.
+
+    Returns:
+      ``policy(obs, rng) -> int32 [P]`` (``rng`` is unused: the policy is deterministic).
+    """
+    R = config.arena.radius
+    team = config.pursuer
+    vmax = team.max_speed
+    dt = config.control_dt
+    r_self, r_opp = team.radius, config.evader.radius
+    crowd = R if crowd_penalty is None else crowd_penalty
+    danger = config.reward.danger_distance if danger_distance is None else danger_distance
+    ends_np, abs_w = _end_points(config, "pursuer", [dt])
+    ends = jnp.asarray(ends_np[:, 0])  # [n, 2]
+    v_np, _ = action_table(team)
+    stop_cost = jnp.asarray(v_np + 1e-3 * abs_w)  # least motion first
+
+    def one(own, mates, mate_valid, opps, opp_valid, action_mask):
+        del own
+        mate_pos, mate_vel, mate_on = _entities(mates, mate_valid, R, vmax)
+        opp_pos, opp_vel, opp_on = _entities(opps, opp_valid, R, vmax)
+
+        # 1. Assignment: distance to each evader plus a penalty per excess closer teammate.
+        d_self = jnp.linalg.norm(opp_pos, axis=-1)  # [O]
+        d_mates = jnp.linalg.norm(opp_pos[None, :, :] - mate_pos[:, None, :], axis=-1)  # [T, O]
+        closer = jnp.sum(mate_on[:, None] & (d_mates < d_self[None, :]), axis=0)  # [O]
+        n_pursuers = 1 + jnp.sum(mate_on)
+        n_evaders = jnp.maximum(jnp.sum(opp_on), 1)
+        quota = (n_pursuers + n_evaders - 1) // n_evaders
+        excess = jnp.maximum(closer - (quota - 1), 0)
+        score = jnp.where(opp_on, d_self + crowd * excess, jnp.inf)
+        target_id = jnp.argmin(score)
+        has_target = jnp.any(opp_on)
+
+        # 2. Pure pursuit to the led target point.
+        d_target = d_self[target_id]
+        lead = jnp.minimum(d_target / vmax, lead_time)
+        target = opp_pos[target_id] + opp_vel[target_id] * lead
+        chase = jnp.linalg.norm(ends - target, axis=-1)  # [n]
+
+        # Danger: moving teammates one step ahead; incapacitated agents of both teams stay put.
+        mate_next = jnp.where(mate_on[:, None], mate_pos + mate_vel * dt, mate_pos)
+        centres = jnp.concatenate([mate_next, opp_pos], axis=0)
+        radii = jnp.concatenate(
+            [
+                jnp.full(mate_pos.shape[:1], r_self + r_self),
+                jnp.full(opp_pos.shape[:1], r_self + r_opp),
+            ]
+        )
+        repel = jnp.concatenate([mate_valid, opp_valid & ~opp_on])
+        gaps = _gap(ends, centres, radii)  # [n, T + O]
+        intrusion = jnp.where(repel, jnp.maximum(danger - gaps, 0.0) / danger, 0.0)
+        cost = chase + danger_weight * jnp.sum(intrusion, axis=-1)
+        cost = jnp.where(has_target, cost, stop_cost)
+        return _masked_argmin(cost, action_mask)
+
+    batched = jax.vmap(one)
+
+    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
+        del rng
+        return batched(
+            obs["own"],
+            obs["teammates"],
+            obs["teammate_mask"],
+            obs["opponents"],
+            obs["opponent_mask"],
+            obs["action_mask"],
+        )
+
+    return policy
+
+
+# ----------------------------------------------------------------------------- scripted evader
+
+
+def scripted_evader(
+    config: EnvConfig,
+    *,
+    horizons: tuple[float, ...] = (1.0, 2.0, 4.0),
+    pursuer_weight: float = 1.0,
+    pursuer_power: float = 1.0,
+    reach: float = 0.0,
+    wall_weight: float = 0.3,
+    obstacle_weight: float = 0.1,
+    teammate_weight: float = 0.1,
+) -> Policy:
+    """Flee pursuers and walls by minimising a repulsive potential over the action's arc.
+
+    For each action allowed by ``action_mask`` the evader looks at its arc (constant v, omega) after
+    ``control_dt * h`` for every ``h`` in ``horizons`` and sums, over those points, the potential
+
+        U(x) = Σ_active pursuers w_p / d(x, p_j(t))  +  w_w / gap_wall(x)
+             + Σ_obstacles w_o / gap(x, o_k)  +  Σ_teammates and incapacitated pursuers w_t / gap
+
+    with each pursuer (and teammate) extrapolated by its observed velocity to the same time t. The
+    wall's centre is known from the own features (r_o, theta_o). Gaps are floored at a few
+    millimetres, so touching costs a lot but stays finite. It takes the action of least total
+    potential. Looking more than one step ahead is what keeps it from fleeing into a corner.
+
+    Args:
+      config: the game; uses the arena radius, the evader team's action table, both teams' radii
+        and ``control_dt``.
+      horizons: look-ahead points, in control steps along the same arc.
+      pursuer_weight, wall_weight, obstacle_weight, teammate_weight: the potential's weights, in
+        metres (each term is weight / distance).
+
+    Returns:
+      ``policy(obs, rng) -> int32 [E]`` (``rng`` is unused: the policy is deterministic).
+    """
+    R = config.arena.radius
+    team = config.evader
+    vmax = team.max_speed
+    dt = config.control_dt
+    r_self, r_opp = team.radius, config.pursuer.radius
+    times = np.asarray(horizons, dtype=np.float64) * dt
+    ends = jnp.asarray(_end_points(config, "evader", times)[0])  # [n, H, 2]
+    t = jnp.asarray(times, dtype=jnp.float32)  # [H]
+    floor = 0.005
+
+    def inverse(gap):
+        return 1.0 / jnp.maximum(gap, floor)
+
+    def one(own, mates, mate_valid, opps, opp_valid, obst, obst_valid, action_mask):
+        mate_pos, mate_vel, mate_on = _entities(mates, mate_valid, R, vmax)
+        opp_pos, opp_vel, opp_on = _entities(opps, opp_valid, R, vmax)
+        centre = own[1] * R * own[2:4]
+
+        # Moving agents extrapolated to each look-ahead time: [H, M, 2].
+        opp_at = opp_pos + (1 - reach) * jnp.where(opp_on[:, None], opp_vel, 0.0) * t[:, None, None]
+        mate_at = mate_pos + jnp.where(mate_on[:, None], mate_vel, 0.0) * t[:, None, None]
+
+        def per_time(x, opp_t, mate_t, tt):  # x [n, 2] arc points at one time
+            d_opp = jnp.linalg.norm(x[:, None, :] - opp_t, axis=-1)  # [n, O]
+            d_reach = d_opp - reach * config.pursuer.max_speed * tt
+            near = pursuer_weight / jnp.maximum(d_reach, floor) ** pursuer_power
+            chase = jnp.sum(jnp.where(opp_on, near, 0.0), -1)
+            static = jnp.sum(
+                jnp.where(
+                    opp_valid & ~opp_on, teammate_weight * inverse(d_opp - r_self - r_opp), 0
+                ),
+                -1,
+            )
+            mate_gap = _gap(x, mate_t, r_self + r_self)
+            mates_u = jnp.sum(jnp.where(mate_valid, teammate_weight * inverse(mate_gap), 0.0), -1)
+            wall_gap = R - jnp.linalg.norm(x - centre, axis=-1) - r_self
+            wall = wall_weight * inverse(wall_gap)
+            obst_pos = obst[:, 1:2] * R * obst[:, 2:4]
+            obst_gap = _gap(x, obst_pos, obst[:, 3] * R + r_self)
+            obstacles = jnp.sum(jnp.where(obst_valid, obstacle_weight * inverse(obst_gap), 0.0), -1)
+            return chase + static + mates_u + wall + obstacles
+
+        potential = jax.vmap(per_time, in_axes=(1, 0, 0, 0))(ends, opp_at, mate_at, t)  # [H, n]
+        return _masked_argmin(jnp.sum(potential, axis=0), action_mask)
+
+    batched = jax.vmap(one)
+
+    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
+        del rng
+        return batched(
+            obs["own"],
+            obs["teammates"],
+            obs["teammate_mask"],
+            obs["opponents"],
+            obs["opponent_mask"],
+            obs["obstacles"],
+            obs["obstacle_mask"],
+            obs["action_mask"],
+        )
+
+    return policy
+
+
+# ----------------------------------------------------------------------------- random
+
+
+def random_policy(config: EnvConfig, team: str) -> Policy:
+    """Uniform over each agent's valid actions (categorical over ``where(action_mask, 0, -inf)``).
+
+    Args:
+      config: the game (only checked: the mask in the observation carries the action count).
+      team: "pursuer" or "evader".
+
+    Returns:
+      ``policy(obs, rng) -> int32 [A]``; a fresh ``rng`` per call gives fresh draws.
+    """
+    config.team(team)  # validates the team name
+
+    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
+        logits = jnp.where(obs["action_mask"], 0.0, -jnp.inf)
+        return jax.random.categorical(rng, logits, axis=-1).astype(jnp.int32)
+
+    return policy
+
+
+# ----------------------------------------------------------------------------- registry
+
+
+def _scripted(config: EnvConfig, team: str) -> Policy:
+    factories = {"pursuer": scripted_pursuer, "evader": scripted_evader}
+    config.team(team)  # validates the team name
+    return factories[team](config)
+
+
+POLICIES: dict[str, Callable[[EnvConfig, str], Policy]] = {
+    "scripted": _scripted,
+    "random": random_policy,
+}
+"""Name -> factory ``(config, team) -> policy``."""
+
+
+def make_policy(name: str, config: EnvConfig, team: str) -> Policy:
+    """Builds a named policy for one team; unknown names or teams raise ValueError.
+
+    Args:
+      name: a key of `POLICIES` ("scripted", "random").
+      config: the game the policy plays.
+      team: "pursuer" or "evader".
+    """
+    if name not in POLICIES:
+        raise ValueError(f"unknown policy {name!r}; known policies: {', '.join(POLICIES)}")
+    if team not in TEAMS:
+        raise ValueError(f"unknown team {team!r}; expected one of {TEAMS}")
+    return POLICIES[name](config, team)
+
+
+__all__ = [
+    "POLICIES",
+    "Policy",
+    "make_policy",
+    "random_policy",
+    "scripted_evader",
+    "scripted_pursuer",
+]

@@ -1,0 +1,233 @@
+"""Checkpoints (orbax, no pickle): the full train state for `--resume`, the policies, and configs.
+
+A run directory holds `checkpoints/<iteration>/` with three orbax items:
+  * `train`: the whole `TrainState` (parameters, optimiser and normaliser state, the env batch,
+    RNG keys as raw key data, counters), so a resumed run continues bit-for-bit;
+  * `policy`: per learned team, its parameters and observation statistics (what
+    `load_policy` reads, without rebuilding any env);
+  * `meta`: JSON with the train, env and network configs, counters and the format version.
+Orbax writes each step into a temporary directory and renames it when complete, so a kill during
+a save leaves the previous step loadable; `CheckpointManager` keeps the last `MAX_TO_KEEP`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from pe_mjx.config import TEAMS, EnvConfig
+from pe_mjx.env import AGENT_FEATURES, OBSTACLE_FEATURES, OWN_FEATURES
+from pe_mjx.networks import NetworkConfig, make_network
+
+FORMAT_VERSION = 1
+MAX_TO_KEEP = 3
+CHECKPOINT_DIR = "checkpoints"
+
+
+class CheckpointError(ValueError):
+    """A missing, unreadable or mismatched checkpoint."""
+
+
+def _is_key(x: Any) -> bool:
+    return hasattr(x, "dtype") and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def keys_to_data(tree: Any) -> Any:
+    """Typed PRNG keys -> raw uint32 key data (orbax stores plain arrays)."""
+    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+
+
+def data_to_keys(template: Any, tree: Any) -> Any:
+    """Inverse of `keys_to_data`, guided by a template that has the typed keys."""
+    return jax.tree.map(
+        lambda t, x: jax.random.wrap_key_data(x) if _is_key(t) else x, template, tree
+    )
+
+
+def _manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:
+    options = ocp.CheckpointManagerOptions(max_to_keep=MAX_TO_KEEP, create=create)
+    return ocp.CheckpointManager(
+        (run_dir / CHECKPOINT_DIR).absolute(),
+        options=options,
+        item_names=("train", "policy", "meta"),
+    )
+
+
+def save(run_dir: str | Path, trainer: Any, train_state: Any) -> int:
+    """Writes a checkpoint of `train_state` (blocking); returns its iteration."""
+    run_dir = Path(run_dir)
+    step = int(train_state.iteration)
+    policy = {
+        team: {"params": ts.params, "normalizer": ts.normalizer}
+        for team, ts in train_state.teams.items()
+    }
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "iteration": step,
+        "env_steps": int(train_state.env_steps),
+        "train_config": trainer.config.to_dict(),
+        "env_config": trainer.env_config.to_dict(),
+        "network_configs": {t: c.to_dict() for t, c in trainer.network_configs.items()},
+        "num_actions": {t: trainer.env_config.team(t).num_actions for t in TEAMS},
+    }
+    with _manager(run_dir, create=True) as mngr:
+        mngr.save(
+            step,
+            args=ocp.args.Composite(
+                train=ocp.args.StandardSave(keys_to_data(train_state)),
+                policy=ocp.args.StandardSave(policy),
+                meta=ocp.args.JsonSave(meta),
+            ),
+            force=True,
+        )
+        mngr.wait_until_finished()
+    return step
+
+
+def _latest_step(run_dir: Path) -> int:
+    if not run_dir.exists():
+        raise CheckpointError(f"no run at {run_dir}: the directory does not exist")
+    if not (run_dir / CHECKPOINT_DIR).is_dir():
+        raise CheckpointError(f"{run_dir} holds no checkpoints (no {CHECKPOINT_DIR}/ directory)")
+    with _manager(run_dir, create=False) as mngr:
+        step = mngr.latest_step()
+    if step is None:
+        raise CheckpointError(f"{run_dir} holds no complete checkpoint")
+    return step
+
+
+def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
+    """The JSON metadata of the latest (or given) checkpoint, validated."""
+    run_dir = Path(run_dir)
+    step = _latest_step(run_dir) if step is None else step
+    try:
+        with _manager(run_dir, create=False) as mngr:
+            meta = mngr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
+    except Exception as err:  # orbax raises many types for a damaged step
+        raise CheckpointError(f"checkpoint {step} in {run_dir} is unreadable: {err}") from None
+    required = ("format_version", "env_config", "train_config", "network_configs", "num_actions")
+    if not isinstance(meta, dict) or any(k not in meta for k in required):
+        raise CheckpointError(f"checkpoint {step} in {run_dir} has malformed metadata")
+    if meta["format_version"] != FORMAT_VERSION:
+        raise CheckpointError(
+            f"checkpoint format {meta['format_version']} in {run_dir} is not supported "
+            f"(this pe-mjx reads format {FORMAT_VERSION})"
+        )
+    meta["step"] = step
+    return meta
+
+
+def dummy_obs(env_config: EnvConfig, team: str) -> dict[str, jax.Array]:
+    """Zero observations of one arena with the shapes of `env._observe` (for network init)."""
+    a = env_config.team(team).num_agents
+    other = env_config.team("evader" if team == "pursuer" else "pursuer").num_agents
+    k = env_config.arena.num_obstacles
+    n_act = env_config.team(team).num_actions
+    return {
+        "own": jnp.zeros((a, OWN_FEATURES)),
+        "teammates": jnp.zeros((a, a - 1, AGENT_FEATURES)),
+        "opponents": jnp.zeros((a, other, AGENT_FEATURES)),
+        "obstacles": jnp.zeros((a, k, OBSTACLE_FEATURES)),
+        "teammate_mask": jnp.ones((a, a - 1), bool),
+        "opponent_mask": jnp.ones((a, other), bool),
+        "obstacle_mask": jnp.ones((a, k), bool),
+        "action_mask": jnp.ones((a, n_act), bool),
+    }
+
+
+def restore_policy_params(
+    run_dir: str | Path, team: str
+) -> tuple[Any, Any, NetworkConfig, dict[str, Any]]:
+    """(network, {"params", "normalizer"}, network config, meta) of one team of a run."""
+    from pe_mjx.ppo.train import init_normalizer
+
+    run_dir = Path(run_dir)
+    meta = read_meta(run_dir)
+    if team not in TEAMS:
+        raise CheckpointError(f"unknown team {team!r}; expected one of {TEAMS}")
+    if team not in meta["network_configs"]:
+        learned = ", ".join(meta["network_configs"]) or "none"
+        raise CheckpointError(
+            f"run {run_dir} did not learn a {team} policy (learned teams: {learned})"
+        )
+    try:
+        env_config = EnvConfig.from_dict(meta["env_config"])
+        net_config = NetworkConfig.from_dict(meta["network_configs"][team])
+    except (TypeError, ValueError) as err:
+        raise CheckpointError(f"checkpoint in {run_dir} has an invalid config: {err}") from None
+    network = make_network(net_config, int(meta["num_actions"][team]))
+    obs = dummy_obs(env_config, team)
+    abstract = {
+        "params": jax.eval_shape(network.init, jax.random.key(0), obs),
+        "normalizer": jax.eval_shape(init_normalizer, obs),
+    }
+    try:
+        with _manager(run_dir, create=False) as mngr:
+            restored = mngr.restore(
+                meta["step"],
+                args=ocp.args.Composite(
+                    policy=ocp.args.StandardRestore({team: abstract}, strict=False)
+                ),
+            ).policy
+    except Exception as err:
+        raise CheckpointError(
+            f"the {team} policy in {run_dir} (step {meta['step']}) cannot be restored: {err}"
+        ) from None
+    return network, restored[team], net_config, meta
+
+
+def load_policy(
+    run_dir: str | Path,
+    team: str,
+    deterministic: bool = False,
+    env_config: EnvConfig | None = None,
+):
+    """Rebuilds a team's policy from a run directory alone.
+
+    Args:
+      run_dir: a `pe-mjx train --out` directory.
+      team: "pursuer" or "evader".
+      deterministic: greedy actions instead of sampling.
+      env_config: if given, checked for compatibility (the team's action count).
+
+    Returns:
+      A jittable `policy(obs, rng) -> int32 [...]`, obs being that team's observation dict with
+      any leading dims ([A, ...] for one arena).
+    """
+    from pe_mjx.ppo.train import learned_policy
+
+    network, state, _, meta = restore_policy_params(run_dir, team)
+    if env_config is not None:
+        want = env_config.team(team).num_actions
+        have = int(meta["num_actions"][team])
+        if want != have:
+            raise CheckpointError(
+                f"the {team} policy in {run_dir} has {have} actions but this scene's {team}s "
+                f"have {want}"
+            )
+    return learned_policy(network, state["params"], state["normalizer"], deterministic)
+
+
+def restore_train_state(run_dir: str | Path, trainer: Any) -> Any:
+    """The full train state of the latest checkpoint, placed with the trainer's shardings."""
+    run_dir = Path(run_dir)
+    step = _latest_step(run_dir)
+    template = jax.eval_shape(trainer._init, jax.random.key(0))
+    abstract = jax.eval_shape(keys_to_data, template)
+    try:
+        with _manager(run_dir, create=False) as mngr:
+            restored = mngr.restore(
+                step, args=ocp.args.Composite(train=ocp.args.StandardRestore(abstract))
+            ).train
+    except Exception as err:
+        raise CheckpointError(f"checkpoint {step} in {run_dir} cannot be restored: {err}") from None
+    restored = data_to_keys(template, jax.tree.map(np.asarray, restored))
+    state = jax.tree.map(jnp.asarray, restored)
+    env_state = jax.device_put(state.env_state, trainer.batch_sharding)
+    teams = jax.device_put(state.teams, trainer.replicated)
+    return state.replace(env_state=env_state, teams=teams)

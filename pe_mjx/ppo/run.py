@@ -1,0 +1,133 @@
+"""The training loop around the jitted iteration: progress bar, TensorBoard, evaluation, checkpoints."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from pe_mjx.ppo import checkpoint
+from pe_mjx.ppo.train import Trainer, TrainConfig, TrainState
+
+
+def _write_config(run_dir: Path, trainer: Trainer) -> None:
+    payload = {
+        "train_config": trainer.config.to_dict(),
+        "env_config": trainer.env_config.to_dict(),
+        "network_configs": {t: c.to_dict() for t, c in trainer.network_configs.items()},
+    }
+    tmp = run_dir / "config.json.tmp"
+    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True))
+    tmp.replace(run_dir / "config.json")
+
+
+def resume_config(run_dir: str | Path, env_steps: int | None = None) -> TrainConfig:
+    """The config of an existing run, optionally with a new (larger) env-step budget."""
+    meta = checkpoint.read_meta(run_dir)
+    config = TrainConfig.from_dict(meta["train_config"])
+    if env_steps is not None and env_steps != config.env_steps:
+        config = TrainConfig.from_dict({**config.to_dict(), "env_steps": env_steps})
+    return config
+
+
+def train(
+    config: TrainConfig,
+    out: str | Path,
+    resume: bool = False,
+    progress: bool = True,
+    stop_after: int | None = None,
+    on_iteration: Callable[[Trainer, TrainState, dict[str, float]], None] | None = None,
+) -> tuple[Trainer, TrainState]:
+    """Trains (or resumes) a co-evolution, writing checkpoints and logs to `out`.
+
+    Args:
+      config: the run's config (for a resume, use `resume_config`).
+      out: the run directory.
+      resume: continue from the latest checkpoint in `out`.
+      progress: show a progress bar.
+      stop_after: stop (with a checkpoint) after this many iterations of this call; for tests
+        and for chunked runs on machines with a time limit.
+      on_iteration: called after every iteration with the host-side metrics (live viewer).
+    """
+    from tensorboardX import SummaryWriter
+
+    run_dir = Path(out)
+    trainer = Trainer(config)
+    if resume:
+        state = checkpoint.restore_train_state(run_dir, trainer)
+    else:
+        if (run_dir / checkpoint.CHECKPOINT_DIR).exists():
+            raise ValueError(
+                f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or "
+                f"choose another --out"
+            )
+        run_dir.mkdir(parents=True, exist_ok=True)
+        state = trainer.init()
+    _write_config(run_dir, trainer)
+    iteration_fn = jax.jit(trainer.iteration, donate_argnums=0)
+    evaluate_fn = jax.jit(trainer.evaluate)
+    writer = SummaryWriter(str(run_dir / "tb"))
+    start = int(state.iteration)
+    total = config.num_iterations
+    end = total if stop_after is None else min(total, start + stop_after)
+    latest_eval: dict[str, float] = {}
+    columns = [
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:,}/{task.total:,} env-steps"),
+        TextColumn("{task.fields[speed]}"),
+        TextColumn("{task.fields[success]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    ]
+    steps_done = int(state.env_steps)
+    with Progress(*columns, disable=not progress) as bar:
+        task = bar.add_task(
+            config.preset, total=total * config.steps_per_iteration, completed=steps_done,
+            speed="", success="",
+        )
+        tic = time.perf_counter()
+        for it in range(start, end):
+            state, metrics = iteration_fn(state)
+            host = {k: float(v) for k, v in jax.device_get(metrics).items()}
+            toc = time.perf_counter()
+            speed = config.steps_per_iteration / (toc - tic)
+            tic = toc
+            host["perf/env_steps_per_s"] = speed
+            n_agents = trainer.env_config.num_agents
+            host["perf/agent_steps_per_s"] = speed * n_agents
+            done_iters = it + 1
+            if config.eval_every and (done_iters % config.eval_every == 0 or done_iters == total):
+                eval_key = jax.random.fold_in(jax.random.key(config.seed + 1), done_iters)
+                latest_eval = {
+                    k: float(v) for k, v in jax.device_get(evaluate_fn(state, eval_key)).items()
+                }
+                host.update(latest_eval)
+                tic = time.perf_counter()  # evaluation time is not training throughput
+            env_steps = int(state.env_steps)
+            for k, v in host.items():
+                if np.isfinite(v):
+                    writer.add_scalar(k, v, env_steps)
+            success = latest_eval.get("eval/pursuer_vs_scripted/success_rate")
+            bar.update(
+                task,
+                completed=env_steps,
+                speed=f"{speed:,.0f} env-steps/s",
+                success="" if success is None else f"success vs scripted {success:.2f}",
+            )
+            if on_iteration is not None:
+                on_iteration(trainer, state, host)
+            if done_iters % config.checkpoint_every == 0 or done_iters == end:
+                checkpoint.save(run_dir, trainer, state)
+    writer.close()
+    return trainer, state
+
+
+def summarize(state: TrainState) -> dict[str, Any]:
+    return {"iteration": int(state.iteration), "env_steps": int(state.env_steps)}

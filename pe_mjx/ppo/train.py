@@ -1,0 +1,386 @@
+"""IPPO co-evolution: both teams' policies trained together from the same jitted rollouts.
+
+One parameter set per team (parameter sharing, paper III); agents are folded into the batch. One
+training iteration, jitted whole, reads top to bottom:
+
+  1. rollout: `unroll_length` steps of `num_envs` arenas (auto-reset draws fresh arenas),
+     learned teams sample from their masked categorical policy, fixed teams run their policy;
+  2. per-team running observation normalisation (Brax `running_statistics`, one statistic per
+     entity type and feature, so it does not depend on entity counts);
+  3. per-team GAE (Brax `compute_gae` on [T, B, A] arrays): an agent's trajectory terminates when
+     it is incapacitated or the episode terminates; transitions of agents already incapacitated
+     are masked out of every loss. Time-limit truncation follows Brax: the truncated step is
+     dropped and the step before it bootstraps from the value of its next observation;
+  4. `update_epochs` passes of clipped PPO over shuffled minibatches, per learned team
+     (Brax `gradient_update_fn`, optax Adam with global-norm clipping and a linear schedule).
+
+Data parallelism: the env batch axis is sharded over every device of a `jax.sharding.Mesh`
+(all local devices, or all processes' devices after `jax.distributed.initialize`); parameters
+are replicated and XLA inserts the gradient all-reduce, so the same code runs on 1 or N devices.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from brax.training import gradients
+from brax.training.acme import running_statistics
+from brax.training.agents.ppo.losses import compute_gae
+from flax import struct
+
+from pe_mjx.config import TEAMS
+from pe_mjx.ppo.config import TrainConfig
+from pe_mjx.env import AutoResetWrapper, PursuitEvasionEnv, State
+from pe_mjx.networks import NetworkConfig, greedy_actions, log_prob, make_network, sample_actions
+from pe_mjx.policies import make_policy
+from pe_mjx.ppo.losses import TeamBatch, ppo_loss
+
+ENTITY_KEYS = ("own", "teammates", "opponents", "obstacles")
+ENTITY_MASKS = {"teammates": "teammate_mask", "opponents": "opponent_mask"}
+ENTITY_MASKS["obstacles"] = "obstacle_mask"
+FIXED_POLICIES = ("scripted", "random")
+
+
+@struct.dataclass
+class TeamState:
+    """A learned team's parameters, optimiser state and observation statistics."""
+
+    params: Any
+    opt_state: Any
+    normalizer: dict[str, running_statistics.RunningStatisticsState]
+
+
+@struct.dataclass
+class TrainState:
+    teams: dict[str, TeamState]
+    env_state: State  # batched [num_envs]
+    rng: jax.Array
+    iteration: jax.Array  # int32 []
+    env_steps: jax.Array  # int32 [] (float64 is off by default; 2^31 env steps is plenty)
+
+
+def init_normalizer(obs: dict[str, jax.Array]) -> dict[str, Any]:
+    """One running statistic per entity type, over its feature axis only."""
+    return {
+        k: running_statistics.init_state(jax.ShapeDtypeStruct(obs[k].shape[-1:], jnp.float32))
+        for k in ENTITY_KEYS
+    }
+
+
+def normalize_obs(obs: dict[str, jax.Array], normalizer: dict[str, Any]) -> dict[str, jax.Array]:
+    out = dict(obs)
+    for k in ENTITY_KEYS:
+        out[k] = running_statistics.normalize(obs[k], normalizer[k], max_abs_value=5.0)
+    return out
+
+
+def update_normalizer(
+    normalizer: dict[str, Any], obs: dict[str, jax.Array], valid: jax.Array
+) -> dict[str, Any]:
+    """Updates each entity type's statistics with the observations of valid agents.
+
+    Args:
+      obs: observation dict with leading dims [..., A] (e.g. [T, B, A]).
+      valid: bool [..., A], the agents whose transitions count.
+    """
+    new = dict(normalizer)
+    for k in ENTITY_KEYS:
+        x = obs[k]
+        if x.size == 0:
+            continue
+        weights = valid.astype(jnp.float32)
+        if k in ENTITY_MASKS:
+            weights = weights[..., None] * obs[ENTITY_MASKS[k]]
+        new[k] = running_statistics.update(normalizer[k], x, weights=weights)
+    return new
+
+
+Policy = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
+
+
+def learned_policy(
+    network: Any, params: Any, normalizer: dict[str, Any], deterministic: bool = False
+) -> Policy:
+    """A jittable `(obs, rng) -> actions` from network parameters and observation statistics.
+
+    `obs` is one team's observation dict with any leading dims ([A, ...] for one arena).
+    """
+    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
+        logits, _ = network.apply(params, normalize_obs(obs, normalizer))
+        return greedy_actions(logits) if deterministic else sample_actions(logits, rng)
+
+    return policy
+
+
+class Trainer:
+    """Builds the jitted training iteration and evaluation for one `TrainConfig`."""
+
+    def __init__(self, config: TrainConfig, mesh: jax.sharding.Mesh | None = None):
+        self.config = config
+        self.env_config = config.env_config()
+        self.env = AutoResetWrapper(PursuitEvasionEnv(self.env_config, backend=config.backend))
+        self.eval_env = PursuitEvasionEnv(self.env_config, backend=config.backend)
+        self.learned = tuple(t for t in TEAMS if getattr(config, t) == "learn")
+        self.network_configs = {t: config.network_config(t, self.env_config) for t in self.learned}
+        self.networks = {
+            t: make_network(self.network_configs[t], self.env_config.team(t).num_actions)
+            for t in self.learned
+        }
+        self.fixed: dict[str, Policy] = {}
+        for team in TEAMS:
+            mode = getattr(config, team)
+            if mode == "learn":
+                continue
+            if mode in FIXED_POLICIES:
+                self.fixed[team] = make_policy(mode, self.env_config, team)
+            else:
+                from pe_mjx.ppo.checkpoint import load_policy
+
+                self.fixed[team] = load_policy(mode, team=team, env_config=self.env_config)
+        self.scripted = {t: make_policy("scripted", self.env_config, t) for t in TEAMS}
+        self.mesh = mesh or jax.sharding.Mesh(np.array(jax.devices()), ("data",))
+        n_dev = self.mesh.devices.size
+        if config.num_envs % n_dev:
+            raise ValueError(
+                f"invalid config: num_envs={config.num_envs} must be a multiple of the "
+                f"{n_dev} devices"
+            )
+        if config.eval_envs % n_dev:
+            raise ValueError(f"invalid config: eval_envs must be a multiple of {n_dev} devices")
+        self.batch_sharding = jax.sharding.NamedSharding(
+            self.mesh, jax.sharding.PartitionSpec("data")
+        )
+        self.replicated = jax.sharding.NamedSharding(self.mesh, jax.sharding.PartitionSpec())
+        self.optimizer = optax.chain(
+            optax.clip_by_global_norm(config.max_grad_norm),
+            optax.adam(self._schedule()),
+        )
+
+    def _schedule(self) -> optax.Schedule | float:
+        cfg = self.config
+        if cfg.lr_schedule == "constant":
+            return cfg.learning_rate
+        updates_per_iter = cfg.update_epochs * cfg.num_minibatches
+        return optax.linear_schedule(
+            cfg.learning_rate, 0.0, transition_steps=cfg.num_iterations * updates_per_iter
+        )
+
+    # ------------------------------------------------------------------ init
+
+    def _shard_batch(self, tree: Any) -> Any:
+        return jax.lax.with_sharding_constraint(tree, self.batch_sharding)
+
+    def init(self, seed: int | None = None) -> TrainState:
+        seed = self.config.seed if seed is None else seed
+        return jax.jit(self._init)(jax.random.key(seed))
+
+    def _init(self, rng: jax.Array) -> TrainState:
+        rng, env_rng, *net_rngs = jax.random.split(rng, 2 + len(TEAMS))
+        env_keys = jax.random.split(env_rng, self.config.num_envs)
+        env_state = self._shard_batch(jax.vmap(self.env.reset)(env_keys))
+        teams = {}
+        for team, net_rng in zip(TEAMS, net_rngs, strict=True):
+            if team not in self.learned:
+                continue
+            obs = jax.tree.map(lambda x: x[0], env_state.obs[team])
+            params = self.networks[team].init(net_rng, obs)
+            teams[team] = TeamState(
+                params=params,
+                opt_state=self.optimizer.init(params),
+                normalizer=init_normalizer(obs),
+            )
+        teams = jax.lax.with_sharding_constraint(teams, self.replicated)
+        return TrainState(
+            teams=teams,
+            env_state=env_state,
+            rng=rng,
+            iteration=jnp.zeros((), jnp.int32),
+            env_steps=jnp.zeros((), jnp.int32),
+        )
+
+    # ------------------------------------------------------------------ rollout
+
+    def _act(
+        self, teams: dict[str, TeamState], obs: dict[str, dict[str, jax.Array]], rng: jax.Array
+    ) -> tuple[dict[str, jax.Array], dict[str, dict[str, jax.Array]]]:
+        """Actions for both teams on batched obs [B, A, ...]; extras for learned teams."""
+        actions, extras = {}, {}
+        keys = dict(zip(TEAMS, jax.random.split(rng, len(TEAMS)), strict=True))
+        for team in TEAMS:
+            team_obs = obs[team]
+            if team in self.learned:
+                ts = teams[team]
+                logits, value = self.networks[team].apply(
+                    ts.params, normalize_obs(team_obs, ts.normalizer)
+                )
+                action = sample_actions(logits, keys[team])
+                extras[team] = {"log_prob": log_prob(logits, action), "value": value}
+            else:
+                batch = team_obs["own"].shape[0]
+                action = jax.vmap(self.fixed[team])(team_obs, jax.random.split(keys[team], batch))
+            actions[team] = action.astype(jnp.int32)
+        return actions, extras
+
+    def _rollout(self, ts: TrainState, rng: jax.Array) -> tuple[State, dict[str, Any]]:
+        def step(env_state: State, key: jax.Array):
+            actions, extras = self._act(ts.teams, env_state.obs, key)
+            next_state = jax.vmap(self.env.step)(env_state, actions)
+            next_state = self._shard_batch(next_state)
+            data = {}
+            for team in self.learned:
+                scale = getattr(self.config, f"{team}_reward_scale")
+                valid = next_state.info["valid"][team]
+                active_after = next_state.info["active"][team]
+                data[team] = {
+                    "obs": env_state.obs[team],
+                    "action": actions[team],
+                    "log_prob": extras[team]["log_prob"],
+                    "value": extras[team]["value"],
+                    "reward": next_state.reward[team] * scale,
+                    "valid": valid,
+                    "termination": (
+                        next_state.info["terminated"][:, None] | ~active_after | ~valid
+                    ).astype(jnp.float32),
+                    "truncation": (next_state.info["truncation"][:, None] * valid),
+                }
+            data["metrics"] = next_state.metrics
+            data["done"] = next_state.done
+            return next_state, data
+
+        keys = jax.random.split(rng, self.config.unroll_length)
+        return jax.lax.scan(step, ts.env_state, keys)
+
+    # ------------------------------------------------------------------ update
+
+    def _team_batch(self, team: str, ts: TeamState, data: dict, bootstrap: jax.Array) -> TeamBatch:
+        cfg = self.config
+        advantages = compute_gae(
+            truncation=data["truncation"],
+            termination=data["termination"],
+            rewards=data["reward"],
+            values=data["value"],
+            bootstrap_value=bootstrap,
+            lambda_=cfg.gae_lambda,
+            discount=cfg.gamma,
+        )[1]
+        returns = advantages + data["value"]
+        mask = data["valid"] * (1.0 - data["truncation"])
+        obs = normalize_obs(data["obs"], ts.normalizer)
+        batch = TeamBatch(
+            obs=obs,
+            actions=data["action"],
+            log_prob=data["log_prob"],
+            advantages=advantages,
+            returns=returns,
+            mask=mask,
+        )
+
+        def fold(x):  # [T, B, A, ...] -> [T * B * A, ...]
+            return x.reshape((x.shape[0] * x.shape[1] * x.shape[2], *x.shape[3:]))
+
+        return jax.tree.map(fold, batch)
+
+    def _update_team(
+        self, team: str, ts: TeamState, batch: TeamBatch, rng: jax.Array
+    ) -> tuple[TeamState, dict[str, jax.Array]]:
+        cfg = self.config
+        network = self.networks[team]
+        loss_fn = functools.partial(
+            ppo_loss,
+            apply_fn=network.apply,
+            clip_epsilon=cfg.clip_epsilon,
+            value_coef=cfg.value_coef,
+            entropy_coef=cfg.entropy_coef,
+        )
+        update = gradients.gradient_update_fn(loss_fn, self.optimizer, None, has_aux=True)
+        n = batch.actions.shape[0]
+        mb = n // cfg.num_minibatches
+
+        def minibatch_step(carry, mb_batch):
+            params, opt_state = carry
+            (_, metrics), params, opt_state = update(params, mb_batch, optimizer_state=opt_state)
+            return (params, opt_state), metrics
+
+        def epoch(carry, key):
+            perm = jax.random.permutation(key, n)[: mb * cfg.num_minibatches]
+            shuffled = jax.tree.map(
+                lambda x: x[perm].reshape((cfg.num_minibatches, mb, *x.shape[1:])), batch
+            )
+            return jax.lax.scan(minibatch_step, carry, shuffled)
+
+        keys = jax.random.split(rng, cfg.update_epochs)
+        (params, opt_state), metrics = jax.lax.scan(epoch, (ts.params, ts.opt_state), keys)
+        metrics = jax.tree.map(jnp.mean, metrics)
+        return ts.replace(params=params, opt_state=opt_state), metrics
+
+    def iteration(self, ts: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
+        """One training iteration (rollout, normalisation, GAE, PPO); jit it."""
+        rng, rollout_rng, update_rng = jax.random.split(ts.rng, 3)
+        env_state, data = self._rollout(ts, rollout_rng)
+        metrics: dict[str, jax.Array] = {}
+        teams = dict(ts.teams)
+        update_keys = dict(zip(TEAMS, jax.random.split(update_rng, len(TEAMS)), strict=True))
+        for team in self.learned:
+            team_ts = teams[team]
+            team_data = data[team]
+            normalizer = update_normalizer(team_ts.normalizer, team_data["obs"], team_data["valid"])
+            team_ts = team_ts.replace(normalizer=normalizer)
+            _, bootstrap = self.networks[team].apply(
+                team_ts.params, normalize_obs(env_state.obs[team], normalizer)
+            )
+            batch = self._team_batch(team, team_ts, team_data, bootstrap)
+            team_ts, losses = self._update_team(team, team_ts, batch, update_keys[team])
+            teams[team] = team_ts
+            for k, v in losses.items():
+                metrics[f"loss/{team}/{k}"] = v
+        # Env metrics: reward terms averaged per step and arena; episode stats over finished ones.
+        done = data["done"]
+        finished = jnp.maximum(jnp.sum(done), 1.0)
+        for k, v in data["metrics"].items():
+            if k.startswith("reward/"):
+                metrics[k] = jnp.mean(v)
+            else:
+                metrics[k] = jnp.sum(v * done) / finished
+        metrics["episode/finished"] = jnp.sum(done)
+        steps = self.config.steps_per_iteration
+        new_ts = TrainState(
+            teams=teams,
+            env_state=env_state,
+            rng=rng,
+            iteration=ts.iteration + 1,
+            env_steps=ts.env_steps + steps,
+        )
+        return new_ts, metrics
+
+    # ------------------------------------------------------------------ evaluation
+
+    def policies(self, ts: TrainState) -> dict[str, Policy]:
+        """Current policy per team: learned ones from `ts`, fixed ones as configured."""
+        out = dict(self.fixed)
+        for team in self.learned:
+            team_ts = ts.teams[team]
+            out[team] = learned_policy(self.networks[team], team_ts.params, team_ts.normalizer)
+        return out
+
+    def evaluate(self, ts: TrainState, rng: jax.Array) -> dict[str, jax.Array]:
+        """Each learned team against the scripted opponent, `eval_envs` full episodes each."""
+        from pe_mjx.episodes import play_episodes
+
+        metrics = {}
+        current = self.policies(ts)
+        for team in self.learned:
+            other = "evader" if team == "pursuer" else "pursuer"
+            pair = {team: current[team], other: self.scripted[other]}
+            rng, key = jax.random.split(rng)
+            final = play_episodes(self.eval_env, pair, key, self.config.eval_envs)
+            for k, v in final.metrics.items():
+                if k.startswith("episode/"):
+                    metrics[f"eval/{team}_vs_scripted/{k[len('episode/') :]}"] = jnp.mean(v)
+        return metrics

@@ -1,0 +1,97 @@
+"""Shared fixtures: compiled envs are cached for the whole session to keep XLA compiles few.
+
+`compiled(config_or_name, backend)` returns a `Compiled` whose jitted functions are created once
+per (config, backend) and compile lazily on first use, so a test that only needs `step` never pays
+for the batched variants. Tests that need another config (max_steps, capture radius, ...) build it
+with `EnvConfig.replace` and get their own cache entry.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pe_mjx import env as pe_env
+from pe_mjx.config import EnvConfig, get_preset
+
+# Small preset used by the hand-placed rule tests: arena radius 2 m, 2 pursuers, 1 evader,
+# 1 obstacle. Action indices (index = n_v * N_omega + n_omega):
+SMALL = "2-1-1"
+P_STOP = 6  # pursuer v = 0, omega = 0
+P_FULL = 2 * 13 + 6  # pursuer v = 0.2 m/s, omega = 0
+E_STOP = 9  # evader v = 0, omega = 0
+E_FULL = 4 * 19 + 9  # evader v = 0.4 m/s, omega = 0
+
+
+class Compiled:
+    """An env and its jitted entry points (each compiles on first call)."""
+
+    def __init__(self, config: EnvConfig, backend: str):
+        self.env = pe_env.PursuitEvasionEnv(config, backend=backend)
+        self.config = config
+        self.backend = backend
+        self.reset = jax.jit(self.env.reset)
+        self.step = jax.jit(self.env.step)
+        self.reset_to = jax.jit(self.env.reset_to)
+        self.batch_reset = jax.jit(jax.vmap(self.env.reset))
+        self.batch_step = jax.jit(jax.vmap(self.env.step))
+
+    def actions(self, pursuer, evader) -> dict[str, jax.Array]:
+        """Action dict; scalars are broadcast to the whole team."""
+        p = np.broadcast_to(np.asarray(pursuer, np.int32), (self.env.num_pursuers,))
+        e = np.broadcast_to(np.asarray(evader, np.int32), (self.env.num_evaders,))
+        return {"pursuer": jnp.asarray(p), "evader": jnp.asarray(e)}
+
+    def place(self, pursuer, evader, obstacles) -> pe_env.State:
+        return self.reset_to(
+            jnp.asarray(pursuer, jnp.float32),
+            jnp.asarray(evader, jnp.float32),
+            jnp.asarray(obstacles, jnp.float32).reshape(self.env.num_obstacles, 3),
+        )
+
+
+@functools.cache
+def _compiled(config: EnvConfig, backend: str) -> Compiled:
+    return Compiled(config, backend)
+
+
+def compiled(config: str | EnvConfig, backend: str) -> Compiled:
+    config = get_preset(config) if isinstance(config, str) else config
+    return _compiled(config, backend)
+
+
+@pytest.fixture(scope="session")
+def get_compiled():
+    """Session-wide factory: get_compiled(preset_or_config, backend) -> Compiled (cached)."""
+    return compiled
+
+
+def small_config(**changes) -> EnvConfig:
+    """The 2-1-1 preset with top-level fields replaced."""
+    return get_preset(SMALL).replace(**changes)
+
+
+def small_with(**sub) -> EnvConfig:
+    """The 2-1-1 preset with nested fields replaced: small_with(reward={"capture_distance": .4})."""
+    cfg = get_preset(SMALL)
+    changes = {k: dataclasses.replace(getattr(cfg, k), **v) for k, v in sub.items()}
+    return cfg.replace(**changes)
+
+
+def fc(gap: float, rc: float = -10.0, danger: float = 0.2) -> float:
+    """Paper's f_c, written independently of the package."""
+    if gap <= 0:
+        return rc
+    if gap <= danger:
+        return rc * (danger - gap) / (danger + gap)
+    return 0.0
+
+
+def wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
