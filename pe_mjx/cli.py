@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
+import tempfile
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -65,6 +68,9 @@ class TrainArgs:
     """Stop (with a checkpoint) after this many iterations; resume later with --resume."""
     progress: bool = True
     """Show the progress bar."""
+    view: bool = False
+    """Show the latest policies playing in the browser while training runs (viewer on
+    http://127.0.0.1:8080, or the next free port)."""
 
 
 def run_train(args: TrainArgs) -> None:
@@ -81,27 +87,195 @@ def run_train(args: TrainArgs) -> None:
         else:
             config = args.config
             out = args.out or Path("runs") / f"{config.pursuer_encoder}-{config.preset}"
-        _, state = train(
-            config, out, resume=args.resume is not None, progress=args.progress,
-            stop_after=args.stop_after,
-        )
+        viewer = None
+        if args.view:
+            from pe_mjx.viewer.app import start_viewer
+
+            viewer = start_viewer(training=True, arenas=1)
+            print(f"pe-mjx train: viewer at {viewer.url}", flush=True)
+        try:
+            _, state = train(
+                config,
+                out,
+                resume=args.resume is not None,
+                progress=args.progress,
+                stop_after=args.stop_after,
+                on_iteration=None if viewer is None else viewer.training_update,
+            )
+        finally:
+            if viewer is not None:
+                viewer.stop()
     except CheckpointError as err:
         _fail(str(err))
     print(f"run {out}: {int(state.env_steps):,} env steps, iteration {int(state.iteration)}")
 
 
+@dataclasses.dataclass(frozen=True)
+class ViewArgs:
+    """Watch arenas live in the browser (Viser), replay recorded trajectories, export recordings.
+
+    Prints the local URL; the page shows the arenas in 3D and updates live. With --export it
+    writes <export>.viser and <export>.html (a page that plays without a server) and exits."""
+
+    preset: str = "20-5-8"
+    """Scenario preset (P-E-K); entity counts can be changed in the GUI."""
+    pursuers: str = "scripted"
+    """Pursuer policy: "scripted", "random", or a `pe-mjx train` run directory."""
+    evaders: str = "scripted"
+    """Evader policy: "scripted", "random", or a `pe-mjx train` run directory."""
+    arenas: int = 1
+    """Arenas shown side by side in a grid."""
+    backend: str = "mjx"
+    """Env backend: "mjx" or "kinematic" (exact arcs, compiles and runs faster)."""
+    seed: int = 0
+    speed: float = 10.0
+    """Env steps per second (0: as fast as possible)."""
+    replay: Path | None = None
+    """Replay this trajectory file (.npz written by `pe-mjx evaluate`) instead of a live run."""
+    export: Path | None = None
+    """Write <export>.viser and <export>.html and exit (the replay, or --steps live steps)."""
+    steps: int = 200
+    """Live control steps recorded by --export."""
+    host: str = "127.0.0.1"
+    """Address to bind; the default serves this machine only."""
+    port: int = 8080
+    """Port (the next free one is used if it is taken)."""
+    record_dir: Path = Path("recordings")
+    """Where the GUI's recordings are written."""
+
+
+def run_view(args: ViewArgs) -> None:
+    from pe_mjx.trajectory import TrajectoryError
+
+    if args.arenas < 1:
+        _fail(f"--arenas must be >= 1, got {args.arenas}")
+    if args.backend not in ("mjx", "kinematic"):
+        _fail(f"unknown backend {args.backend!r}; expected mjx or kinematic")
+    traj = None
+    if args.replay is not None:
+        from pe_mjx.trajectory import load as load_trajectory
+
+        try:
+            traj = load_trajectory(args.replay).select(args.arenas if args.arenas > 1 else 1_000)
+        except TrajectoryError as err:
+            _fail(str(err))
+    else:
+        _check_preset(args.preset)
+    if args.export is not None:
+        from pe_mjx.viewer.replay import export_live, export_trajectory
+
+        speed = args.speed / 5.0 if args.speed > 0 else 1.0  # 5 env steps/s is real time
+        try:
+            if traj is not None:
+                paths = export_trajectory(traj, args.export, speed)
+            else:
+                paths = export_live(
+                    args.preset,
+                    args.pursuers,
+                    args.evaders,
+                    args.arenas,
+                    args.backend,
+                    args.seed,
+                    args.steps,
+                    args.export,
+                    speed,
+                )
+        except (FileExistsError, TrajectoryError) as err:
+            _fail(str(err))
+        print(f"wrote {paths[0]} and {paths[1]}")
+        return
+    from pe_mjx.viewer.app import ViewerOptions, start_viewer
+
+    options = ViewerOptions(
+        preset=args.preset if traj is None else traj.config.name,
+        pursuers=args.pursuers,
+        evaders=args.evaders,
+        arenas=args.arenas,
+        backend=args.backend,
+        seed=args.seed,
+        speed=args.speed,
+        host=args.host,
+        port=args.port,
+        record_dir=args.record_dir,
+    )
+    viewer = start_viewer(options, replay=traj, wait=False)
+    print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.stop()
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaluateArgs:
+    """Cross-confrontation (paper IV-B to IV-E): every pursuer policy against every evader policy.
+    A policy is "scripted", "random" or a `pe-mjx train` run directory. Writes results.md (the
+    paper's table layout), results.csv, trials.csv, results.json, heatmaps and trajectories."""
+
+    pursuers: tuple[str, ...] = ("scripted",)
+    """Pursuit policies."""
+    evaders: tuple[str, ...] = ("scripted",)
+    """Evasion policies."""
+    preset: str = "20-5-8"
+    """Scene to evaluate in (policies trained elsewhere are run unchanged: generalization)."""
+    trials: int = 100
+    """Episodes per pairing (one vmapped batch)."""
+    seed: int = 0
+    backend: str = "mjx"
+    record: int = 3
+    """Trials per pairing saved as trajectories for `pe-mjx view --replay`."""
+    out: Path = Path("results/latest")
+    """Output directory."""
+
+
+def run_evaluate(args: EvaluateArgs) -> None:
+    _check_preset(args.preset)
+    if args.trials < 1:
+        _fail("--trials must be >= 1")
+    if args.backend not in ("mjx", "kinematic"):
+        _fail(f"unknown backend {args.backend!r}; expected mjx or kinematic")
+    if args.out.exists() and any(args.out.glob("results.*")):
+        _fail(f"{args.out} already holds results; choose another --out")
+    from pe_mjx.evaluate import evaluate
+
+    report = evaluate(
+        list(args.pursuers), list(args.evaders), args.preset, args.out, args.trials,
+        args.seed, args.backend, args.record,
+    )
+    print(report["paths"]["markdown"].read_text())
+    print(f"wrote {args.out} in {report['meta']['seconds']:.1f} s")
+
+
 def run_scene(args: SceneArgs) -> None:
     _check_preset(args.preset)
+    if args.output.is_dir():
+        _fail(f"{args.output} is a directory; give the path of the file to write")
     if args.output.exists() and not args.force:
         _fail(f"{args.output} exists; pass --force to overwrite it")
-    if not args.output.parent.exists():
+    if not args.output.parent.is_dir():
         _fail(f"directory {args.output.parent} does not exist")
     from pe_mjx.export import arena_xml
 
     xml = arena_xml(args.preset, args.seed)
-    tmp = args.output.with_name(args.output.name + ".tmp")
-    tmp.write_text(xml)
-    tmp.replace(args.output)
+    # Write a fresh temporary file next to the output, then rename: never a half-written output,
+    # never an existing file clobbered by the temporary one.
+    try:
+        fd, tmp = tempfile.mkstemp(
+            dir=args.output.parent, prefix=f".{args.output.name}.", suffix=".tmp"
+        )
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(xml)
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, args.output)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    except OSError as err:
+        _fail(f"cannot write {args.output}: {err}")
     print(f"wrote {args.output} (preset {args.preset}, seed {args.seed})")
 
 
@@ -119,6 +293,8 @@ def main(argv: list[str] | None = None) -> None:
         "scene": (SceneArgs, run_scene),
         "demo": (DemoArgs, run_demo),
         "train": (TrainArgs, run_train),
+        "view": (ViewArgs, run_view),
+        "evaluate": (EvaluateArgs, run_evaluate),
     }
     subcommands = {name: cls for name, (cls, _) in commands.items()}
     args = tyro.extras.subcommand_cli_from_dict(subcommands, args=argv, prog="pe-mjx")

@@ -12,7 +12,6 @@ TEAMS = ("pursuer", "evader")
 ENCODERS = ("mix", "mean", "birnn", "mlp")
 
 
-
 def _check(cond: bool, field: str, msg: str) -> None:
     if not cond:
         raise ValueError(f"invalid config: {field} {msg}")

@@ -2,90 +2,64 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import jax
 import jax.numpy as jnp
 
 from pe_mjx.config import TEAMS
 from pe_mjx.env import PursuitEvasionEnv, State
-
-Policy = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
+from pe_mjx.match import rollout
+from pe_mjx.policies import Policy
 
 
 def play_episodes(
     env: PursuitEvasionEnv,
     policies: dict[str, Policy],
-    rng: jax.Array,
-    num_episodes: int,
+    keys: jax.Array,
     record: bool = False,
 ) -> State | tuple[State, dict[str, jax.Array]]:
-    """Plays `num_episodes` arenas (one vmapped batch) until every one is done.
+    """Plays one episode per key (one vmapped batch of B arenas) until every one is done.
 
-    A finished arena is frozen (its state stops changing), so its final metrics are those of the
-    step that ended it. Not jitted here; jit the caller.
+    Arena i's episode (its reset and every action sampled) depends on `keys[i]` alone, exactly as
+    `match.rollout(env, policies, keys[i], max_steps)`, so a subset of trials can be replayed with
+    a subset of the keys. Not jitted here; jit the caller.
 
     Args:
       env: the env (no auto-reset).
-      policies: team -> `(obs, rng) -> int32 [A]` for one arena; vmapped over arenas here.
-      rng: key; arena i is reset from `jax.random.split(reset_key, num_episodes)[i]`.
-      num_episodes: B, the number of arenas.
-      record: also return poses [max_steps + 1, B, N, 3] and active [max_steps + 1, B, N] of
-        every step (steps after an arena ended repeat its final state).
+      policies: team -> `(obs, rng) -> int32 [A]` for one arena.
+      keys: [B] PRNG keys, one per arena.
+      record: also return the trajectory: poses [max_steps + 1, B, N, 3] and active
+        [max_steps + 1, B, N] (after an arena ended, its frames repeat its final state).
 
     Returns:
       The batched final state [B], and with `record` the trajectory dict.
     """
-    reset_rng, play_rng = jax.random.split(rng)
-    state = jax.vmap(env.reset)(jax.random.split(reset_rng, num_episodes))
     max_steps = env.config.max_steps
+    if not record:
+        return jax.vmap(lambda k: rollout(env, policies, k, max_steps))(keys)
 
-    def act(s: State, key: jax.Array) -> dict[str, jax.Array]:
-        keys = dict(zip(TEAMS, jax.random.split(key, len(TEAMS)), strict=True))
-        return {
-            t: jax.vmap(policies[t])(s.obs[t], jax.random.split(keys[t], num_episodes)).astype(
-                jnp.int32
-            )
-            for t in TEAMS
-        }
+    def one_arena(rng):
+        rng, reset_rng = jax.random.split(rng)
+        state = env.reset(reset_rng)
 
-    def advance(s: State, key: jax.Array) -> State:
-        new = jax.vmap(env.step)(s, act(s, key))
-        finished = s.done > 0
+        def body(carry, _):
+            s, key = carry
+            key, *team_keys = jax.random.split(key, len(TEAMS) + 1)
+            actions = {t: policies[t](s.obs[t], k) for t, k in zip(TEAMS, team_keys, strict=True)}
+            nxt = env.step(s, actions)
+            finished = s.done > 0
+            s = jax.tree.map(lambda old, new: jnp.where(finished, old, new), s, nxt)
+            return (s, key), pose_of(s)
 
-        def keep(old, nxt):
-            mask = finished.reshape(finished.shape + (1,) * (nxt.ndim - 1))
-            return jnp.where(mask, old, nxt)
-
-        return jax.tree.map(keep, s, new)
-
-    def pose_of(s: State) -> tuple[jax.Array, jax.Array]:
-        w = s.world
-        return jnp.concatenate([w.pos, w.yaw[..., None]], axis=-1), w.active
-
-    if record:
-
-        def scan_step(s, key):
-            s = advance(s, key)
-            return s, pose_of(s)
-
-        keys = jax.random.split(play_rng, max_steps)
-        final, (poses, active) = jax.lax.scan(scan_step, state, keys)
-        p0, a0 = pose_of(state)
-        traj = {
-            "poses": jnp.concatenate([p0[None], poses]),
-            "active": jnp.concatenate([a0[None], active]),
-        }
+        (final, _), frames = jax.lax.scan(body, (state, rng), None, length=max_steps)
+        first = pose_of(state)
+        traj = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, frames)
         return final, traj
 
-    def cond(carry):
-        s, _, i = carry
-        return (i < max_steps) & ~jnp.all(s.done > 0)
+    def pose_of(s: State) -> dict[str, jax.Array]:
+        w = s.world
+        return {"poses": jnp.concatenate([w.pos, w.yaw[..., None]], axis=-1), "active": w.active}
 
-    def body(carry):
-        s, key, i = carry
-        key, sub = jax.random.split(key)
-        return advance(s, sub), key, i + 1
-
-    final, _, _ = jax.lax.while_loop(cond, body, (state, play_rng, jnp.zeros((), jnp.int32)))
-    return final
+    final, traj = jax.vmap(one_arena)(keys)
+    # vmap puts the arena axis first; the trajectory format is time-major [T, B, ...].
+    traj = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), traj)
+    return final, traj

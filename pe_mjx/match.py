@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -90,26 +91,31 @@ def match_summary(env: PursuitEvasionEnv, state: State) -> dict[str, Any]:
     return out
 
 
+@functools.cache
+def _scripted_match(preset: str, backend: str, steps: int) -> tuple[PursuitEvasionEnv, Any]:
+    """(env, jitted key -> final state) of a scripted match; cached so replays skip the compile."""
+    config = get_preset(preset)
+    env = PursuitEvasionEnv(config, backend=backend)
+    policies = {team: make_policy("scripted", config, team) for team in TEAMS}
+    return env, jax.jit(lambda key: rollout(env, policies, key, steps))
+
+
 def play_scripted_match(preset: str, seed: int, backend: str, steps: int) -> dict[str, Any]:
     """One episode, scripted pursuers against scripted evaders, jitted; returns its summary.
 
     Args:
       preset: scenario preset name (see `pe_mjx.config.PRESETS`).
-      seed: seed of the arena draw (`jax.random.key(seed)`).
+      seed: seed of the arena draw (``jax.random.key(seed)``).
       backend: "mjx" or "kinematic".
       steps: control steps at most (the env's ``max_steps`` also ends the episode).
 
     Returns:
-      `match_summary` of the final state (plain Python numbers and booleans).
+      `match_summary` of the final state (plain Python ints, floats and bools).
     """
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
-    config = get_preset(preset)
-    env = PursuitEvasionEnv(config, backend=backend)
-    policies = {team: make_policy("scripted", config, team) for team in TEAMS}
-    play = jax.jit(lambda key: rollout(env, policies, key, steps))
-    final = play(jax.random.key(seed))
-    return match_summary(env, final)
+    env, play = _scripted_match(preset, backend, steps)
+    return match_summary(env, play(jax.random.key(seed)))
 
 
 __all__ = ["match_summary", "play_scripted_match", "rollout"]

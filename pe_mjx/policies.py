@@ -1,4 +1,4 @@
-"""Hand-written policies for both teams (scripted pursuit and evasion, uniform random) and their registry.
+"""Hand-written policies for both teams (scripted pursuit and evasion, random) and a registry.
 
 Every policy has the signature a learned policy has::
 
@@ -60,7 +60,7 @@ def _gap(points: jax.Array, centres: jax.Array, radii: jax.Array | float) -> jax
 
 
 def _masked_argmin(cost: jax.Array, action_mask: jax.Array) -> jax.Array:
-    """argmin over valid actions of one agent: ``cost [n]``, ``action_mask bool [n]`` -> int32 []."""
+    """argmin of ``cost [n]`` over one agent's valid actions (``action_mask`` bool [n]): int32."""
     return jnp.argmin(jnp.where(action_mask, cost, jnp.inf)).astype(jnp.int32)
 
 
@@ -92,18 +92,19 @@ def scripted_pursuer(
        penalty, and the pursuer targets the evader with the lowest score. The pursuers spread over
        the evaders without talking to each other.
     2. **Pursuit.** The target point is the evader's position led by its observed velocity for
-       ``min(distance / v_max, lead_time)`` seconds. Among the actions allowed by ``action_mask``,
-       the pursuer takes the one whose arc end point after ``control_dt`` lies closest to the target,
-       plus ``danger_weight`` times how deep (in units of the danger distance) the end point gets
-       into the danger zone of a teammate (predicted one step ahead by its observed velocity) or of an
-       incapacitated agent (a static obstacle).
+       ``min(distance / v_max, lead_time)`` seconds. Among the actions allowed by
+       ``action_mask``, the pursuer takes the one whose arc end point after ``control_dt`` lies
+       closest to the target, plus ``danger_weight`` times how deep (in danger distances) the end
+       point gets into the danger zone of a teammate (predicted one step ahead by its observed
+       velocity) or of an incapacitated agent (a static obstacle).
     3. With no active evader it stops (the valid action with the least speed and turn).
 
     Args:
       config: the game; uses the arena radius, the pursuer team's action table and ``control_dt``.
       crowd_penalty: metres added per excess closer teammate; default: the arena radius.
       lead_time: cap, in seconds, of the target's velocity lead.
-      danger_distance: gap in metres below which teammates repel; default ``reward.danger_distance``.
+      danger_distance: gap in metres below which teammates repel; default: the reward's
+        ``danger_distance``.
       danger_weight: weight of the repulsion, in metres per danger-distance of intrusion.
 
     Returns:
@@ -182,33 +183,40 @@ def scripted_pursuer(
 def scripted_evader(
     config: EnvConfig,
     *,
-    horizons: tuple[float, ...] = (1.0, 2.0, 4.0),
+    horizons: tuple[float, ...] = (1.0, 3.0, 6.0, 10.0),
     pursuer_weight: float = 1.0,
-    pursuer_power: float = 1.0,
-    reach: float = 0.0,
+    pursuer_power: float = 2.0,
+    worst_case: bool = True,
     wall_weight: float = 0.3,
     obstacle_weight: float = 0.1,
-    teammate_weight: float = 0.1,
+    teammate_weight: float = 0.3,
+    safety_margin: float = 0.05,
 ) -> Policy:
-    """Flee pursuers and walls by minimising a repulsive potential over the action's arc.
+    """Flee pursuers and walls by minimising a repulsive potential along each action's arc.
 
-    For each action allowed by ``action_mask`` the evader looks at its arc (constant v, omega) after
-    ``control_dt * h`` for every ``h`` in ``horizons`` and sums, over those points, the potential
+    For each action allowed by ``action_mask`` the evader follows that action's arc (constant v,
+    omega) to the times ``t = control_dt * h`` for ``h`` in ``horizons`` and sums, over those points
+    x(t), the potential
 
-        U(x) = Σ_active pursuers w_p / d(x, p_j(t))  +  w_w / gap_wall(x)
-             + Σ_obstacles w_o / gap(x, o_k)  +  Σ_teammates and incapacitated pursuers w_t / gap
+        U = Σ_active pursuers w_p / d_j(t)^power  +  w_w / gap_wall  +  Σ_obstacles w_o / gap
+          + Σ_teammates w_t / gap  +  Σ_incapacitated pursuers w_t / gap
 
-    with each pursuer (and teammate) extrapolated by its observed velocity to the same time t. The
-    wall's centre is known from the own features (r_o, theta_o). Gaps are floored at a few
-    millimetres, so touching costs a lot but stays finite. It takes the action of least total
-    potential. Looking more than one step ahead is what keeps it from fleeing into a corner.
+    where ``d_j(t) = |x(t) - p_j| - v_p t`` is the distance to pursuer j's worst-case reachable disc
+    (``worst_case=True``; with False, ``|x(t) - (p_j + u_j t)|``, the pursuer extrapolated by its
+    observed velocity u_j). Teammates are extrapolated by their observed velocity; incapacitated
+    agents and obstacles stand still. The wall's centre comes from the own features (r_o, theta_o).
+    Every distance is floored at 5 mm, so touching costs a lot but stays finite. The evader takes
+    the action of least summed potential; looking several steps ahead keeps it out of corners.
 
     Args:
-      config: the game; uses the arena radius, the evader team's action table, both teams' radii
-        and ``control_dt``.
-      horizons: look-ahead points, in control steps along the same arc.
-      pursuer_weight, wall_weight, obstacle_weight, teammate_weight: the potential's weights, in
-        metres (each term is weight / distance).
+      config: the game; uses the arena radius, the evader team's action table, both teams' radii,
+        the pursuers' v_max and ``control_dt``.
+      horizons: look-ahead times along the arc, in control steps.
+      pursuer_weight, pursuer_power: pursuer term ``w_p / d^power`` (power 2 favours the nearest).
+      worst_case: pursuers as reachable discs (True) or velocity-extrapolated points (False).
+      wall_weight, obstacle_weight, teammate_weight: weights of the ``w / gap`` terms, in metres.
+      safety_margin: gap in metres; actions whose next-step end point comes this close to a
+        teammate or a downed pursuer are taken only when nothing else is valid.
 
     Returns:
       ``policy(obs, rng) -> int32 [E]`` (``rng`` is unused: the policy is deterministic).
@@ -216,47 +224,61 @@ def scripted_evader(
     R = config.arena.radius
     team = config.evader
     vmax = team.max_speed
-    dt = config.control_dt
     r_self, r_opp = team.radius, config.pursuer.radius
-    times = np.asarray(horizons, dtype=np.float64) * dt
+    times = np.asarray(horizons, dtype=np.float64) * config.control_dt
     ends = jnp.asarray(_end_points(config, "evader", times)[0])  # [n, H, 2]
     t = jnp.asarray(times, dtype=jnp.float32)  # [H]
+    reach = config.pursuer.max_speed * t if worst_case else jnp.zeros_like(t)  # [H]
+    follow = 0.0 if worst_case else 1.0
     floor = 0.005
+    dt = config.control_dt
+    step_ends = jnp.asarray(_end_points(config, "evader", [dt])[0][:, 0])  # [n, 2]
+    margin = safety_margin
 
-    def inverse(gap):
-        return 1.0 / jnp.maximum(gap, floor)
+    def inverse(gap, power=1.0):
+        return 1.0 / jnp.maximum(gap, floor) ** power
 
     def one(own, mates, mate_valid, opps, opp_valid, obst, obst_valid, action_mask):
         mate_pos, mate_vel, mate_on = _entities(mates, mate_valid, R, vmax)
         opp_pos, opp_vel, opp_on = _entities(opps, opp_valid, R, vmax)
         centre = own[1] * R * own[2:4]
+        obst_pos = obst[:, 0:1] * R * obst[:, 1:3]  # [K, 2]
+        obst_radius = obst[:, 3] * R
 
-        # Moving agents extrapolated to each look-ahead time: [H, M, 2].
-        opp_at = opp_pos + (1 - reach) * jnp.where(opp_on[:, None], opp_vel, 0.0) * t[:, None, None]
+        # Agents at each look-ahead time: [H, M, 2]; the incapacitated ones stay where they are.
+        opp_vel = follow * jnp.where(opp_on[:, None], opp_vel, 0.0)
+        opp_at = opp_pos + opp_vel * t[:, None, None]
         mate_at = mate_pos + jnp.where(mate_on[:, None], mate_vel, 0.0) * t[:, None, None]
 
-        def per_time(x, opp_t, mate_t, tt):  # x [n, 2] arc points at one time
+        def at_time(x, opp_t, mate_t, reach_t):  # x [n, 2]: every action's arc point at one time
             d_opp = jnp.linalg.norm(x[:, None, :] - opp_t, axis=-1)  # [n, O]
-            d_reach = d_opp - reach * config.pursuer.max_speed * tt
-            near = pursuer_weight / jnp.maximum(d_reach, floor) ** pursuer_power
-            chase = jnp.sum(jnp.where(opp_on, near, 0.0), -1)
-            static = jnp.sum(
-                jnp.where(
-                    opp_valid & ~opp_on, teammate_weight * inverse(d_opp - r_self - r_opp), 0
-                ),
-                -1,
+            chase = pursuer_weight * inverse(d_opp - reach_t, pursuer_power)
+            downed = teammate_weight * inverse(d_opp - r_self - r_opp)
+            opp_u = jnp.where(opp_on, chase, jnp.where(opp_valid, downed, 0.0))
+            mate_u = jnp.where(
+                mate_valid, teammate_weight * inverse(_gap(x, mate_t, 2 * r_self)), 0
             )
-            mate_gap = _gap(x, mate_t, r_self + r_self)
-            mates_u = jnp.sum(jnp.where(mate_valid, teammate_weight * inverse(mate_gap), 0.0), -1)
             wall_gap = R - jnp.linalg.norm(x - centre, axis=-1) - r_self
-            wall = wall_weight * inverse(wall_gap)
-            obst_pos = obst[:, 1:2] * R * obst[:, 2:4]
-            obst_gap = _gap(x, obst_pos, obst[:, 3] * R + r_self)
-            obstacles = jnp.sum(jnp.where(obst_valid, obstacle_weight * inverse(obst_gap), 0.0), -1)
-            return chase + static + mates_u + wall + obstacles
+            obst_gap = _gap(x, obst_pos, obst_radius + r_self)
+            obst_u = jnp.where(obst_valid, obstacle_weight * inverse(obst_gap), 0.0)
+            return (
+                jnp.sum(opp_u, -1)
+                + jnp.sum(mate_u, -1)
+                + jnp.sum(obst_u, -1)
+                + wall_weight * inverse(wall_gap)
+            )
 
-        potential = jax.vmap(per_time, in_axes=(1, 0, 0, 0))(ends, opp_at, mate_at, t)  # [H, n]
-        return _masked_argmin(jnp.sum(potential, axis=0), action_mask)
+        potential = jax.vmap(at_time, in_axes=(1, 0, 0, 0))(ends, opp_at, mate_at, reach)
+        # Next step: never end within `safety_margin` of a teammate (extrapolated by its velocity)
+        # or of a downed pursuer; the potential alone can be swamped by the pursuer terms.
+        step_end = step_ends  # [n, 2]
+        mate_next = mate_pos + jnp.where(mate_on[:, None], mate_vel, 0.0) * dt
+        mate_hit = jnp.any(mate_valid & (_gap(step_end, mate_next, 2 * r_self) <= margin), -1)
+        downed_hit = jnp.any(
+            opp_valid & ~opp_on & (_gap(step_end, opp_pos, r_self + r_opp) <= margin), -1
+        )
+        unsafe = (mate_hit | downed_hit).astype(jnp.float32) * 1e9
+        return _masked_argmin(jnp.sum(potential, axis=0) + unsafe, action_mask)
 
     batched = jax.vmap(one)
 

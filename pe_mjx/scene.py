@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from xml.etree import ElementTree
 
 import mujoco
 import numpy as np
@@ -99,13 +100,19 @@ def _add_robot(
         mass=0,
     )
     tau = config.actuator_time_constant
-    for axis_name, gain in (("x", ROBOT_MASS / tau), ("y", ROBOT_MASS / tau), ("yaw", inertia[2] / tau)):
+    for axis_name, gain in (
+        ("x", ROBOT_MASS / tau),
+        ("y", ROBOT_MASS / tau),
+        ("yaw", inertia[2] / tau),
+    ):
         act = spec.add_actuator(name=f"{name}_{axis_name}_vel", target=f"{name}_{axis_name}")
         act.trntype = mujoco.mjtTrn.mjTRN_JOINT
         act.set_to_velocity(kv=gain)
 
 
-def build_spec(config: EnvConfig, layout: Layout | None = None, visual: bool = True) -> mujoco.MjSpec:
+def build_spec(
+    config: EnvConfig, layout: Layout | None = None, visual: bool = True
+) -> mujoco.MjSpec:
     """Builds the arena's MjSpec.
 
     Args:
@@ -170,11 +177,52 @@ def build_spec(config: EnvConfig, layout: Layout | None = None, visual: bool = T
     return spec
 
 
-def build_model(config: EnvConfig, layout: Layout | None = None, visual: bool = True) -> mujoco.MjModel:
+def build_model(
+    config: EnvConfig, layout: Layout | None = None, visual: bool = True
+) -> mujoco.MjModel:
     """Compiles `build_spec`."""
     return build_spec(config, layout, visual).compile()
 
 
+def _fmt(values) -> str:
+    return " ".join(repr(float(v)) for v in values)
+
+
+def _exact_attributes(config: EnvConfig, layout: Layout) -> dict[tuple[str, str], dict[str, str]]:
+    """The layout-dependent attributes of `build_spec`, printed at full (round-trip) precision."""
+    exact: dict[tuple[str, str], dict[str, str]] = {}
+    for team in ("pursuer", "evader"):
+        for i, pose in enumerate(np.asarray(getattr(layout, team), dtype=float)):
+            name = robot_name(team, i)
+            x, y, yaw = (float(v) for v in pose)
+            c, s = math.cos(yaw), math.sin(yaw)
+            exact["body", name] = {
+                "pos": _fmt([x, y, ROBOT_HALF_HEIGHT]),
+                "quat": _fmt([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]),
+            }
+            exact["joint", f"{name}_x"] = {"ref": _fmt([x]), "axis": _fmt([c, -s, 0.0])}
+            exact["joint", f"{name}_y"] = {"ref": _fmt([y]), "axis": _fmt([s, c, 0.0])}
+            exact["joint", f"{name}_yaw"] = {"ref": _fmt([yaw])}
+    for k, (x, y, r) in enumerate(np.asarray(layout.obstacles, dtype=float)):
+        exact["geom", f"obstacle_{k}"] = {
+            "pos": _fmt([x, y, WALL_HALF_HEIGHT]),
+            "size": _fmt([r, WALL_HALF_HEIGHT]),
+        }
+    qpos = np.concatenate([layout.pursuer, layout.evader]).reshape(-1)
+    exact["key", "spawn"] = {"qpos": _fmt(qpos)}
+    return exact
+
+
 def scene_xml(config: EnvConfig, layout: Layout) -> str:
-    """Standalone MJCF of one drawn arena (loads in plain MuJoCo)."""
-    return build_spec(config, layout, visual=True).to_xml()
+    """Standalone MJCF of one drawn arena (loads in plain MuJoCo).
+
+    MuJoCo's XML writer prints 6 significant digits; the layout's numbers (poses, obstacles, the
+    spawn key) are rewritten at full precision, so the file loads to exactly the drawn arena.
+    """
+    root = ElementTree.fromstring(build_spec(config, layout, visual=True).to_xml())
+    exact = _exact_attributes(config, layout)
+    for elem in root.iter():
+        attributes = exact.get((elem.tag, elem.get("name", "")))
+        if attributes:
+            elem.attrib.update(attributes)
+    return ElementTree.tostring(root, encoding="unicode") + "\n"

@@ -84,6 +84,22 @@ def small_with(**sub) -> EnvConfig:
     return cfg.replace(**changes)
 
 
+def variant_config() -> EnvConfig:
+    """2-1-1 with every optional rule switched on, shared by several tests (one compile):
+
+    * capture_radius = 0.3 m (epsilon > r_p + r_e: capture without contact),
+    * reward.capture_distance = 0.4 m (d_cap > epsilon: the floor of f_p is reachable),
+    * min_turning_radius 0.3 m (pursuers) and 0.5 m (evaders),
+    * max_steps = 2 (quick truncation for the auto-reset wrapper).
+    """
+    cfg = small_with(
+        reward={"capture_distance": 0.4},
+        pursuer={"min_turning_radius": 0.3},
+        evader={"min_turning_radius": 0.5},
+    )
+    return cfg.replace(capture_radius=0.3, max_steps=2)
+
+
 def fc(gap: float, rc: float = -10.0, danger: float = 0.2) -> float:
     """Paper's f_c, written independently of the package."""
     if gap <= 0:

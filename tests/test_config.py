@@ -45,9 +45,7 @@ def test_paper_table_one_defaults():
 
 def test_large_preset_has_paper_density():
     big, paper = get_preset("240-60-120"), get_preset("24-6-12")
-    density = [
-        (c.num_agents + c.arena.num_obstacles) / c.arena.radius**2 for c in (big, paper)
-    ]
+    density = [(c.num_agents + c.arena.num_obstacles) / c.arena.radius**2 for c in (big, paper)]
     assert density[0] == pytest.approx(density[1])
 
 
@@ -134,12 +132,12 @@ def test_too_many_obstacles_names_arena_fields():
     with pytest.raises(ValueError, match=r"arena\.radius.*arena\.num_obstacles") as err:
         cfg.with_counts(2, 1, 40)
     assert "cannot be placed" in str(err.value)
-    with pytest.raises(ValueError, match="arena.radius"):
+    with pytest.raises(ValueError, match=r"arena\.radius"):
         cfg.with_counts(200, 1, 1)
 
 
 def test_arena_too_small_for_entities():
-    with pytest.raises(ValueError, match="arena.radius"):
+    with pytest.raises(ValueError, match=r"arena\.radius"):
         EnvConfig(arena=ArenaConfig(radius=0.6, num_obstacles=0))
 
 
@@ -177,7 +175,7 @@ def test_from_dict_rejects_bad_input():
     with pytest.raises(ValueError, match="JSON object"):
         EnvConfig.from_dict([1, 2])
     bad = {**d, "arena": {**d["arena"], "num_obstacles": 99}}
-    with pytest.raises(ValueError, match="arena.num_obstacles"):
+    with pytest.raises(ValueError, match=r"arena\.num_obstacles"):
         EnvConfig.from_dict(bad)
 
 

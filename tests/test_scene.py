@@ -1,4 +1,4 @@
-"""The procedural MJCF (SPEC 2.2): joints, actuators, options; world-aligned slides in plain MuJoCo."""
+"""The procedural MJCF (SPEC 2.2): joints, actuators, options, world-aligned slides."""
 
 from __future__ import annotations
 

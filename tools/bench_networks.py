@@ -12,7 +12,6 @@ gradient of a PPO-shaped loss: log-prob, value and entropy terms) on a batch of 
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
 
 import jax
@@ -22,17 +21,23 @@ import pe_mjx
 from pe_mjx import networks as nets
 
 
-def _time(fn, args, repeats: int) -> tuple[float, float]:
-    """(compile+first call seconds, median seconds per call)."""
+def _time(fn, args, repeats: int) -> tuple[float, float, float]:
+    """(compile+first call seconds, best wall seconds per call, best CPU seconds per call).
+
+    Best-of-`repeats` rather than the median, and CPU time (all threads of this process) next to
+    wall time, because on a shared machine both depend on what else runs; on an idle machine wall
+    time is at most the CPU time.
+    """
     t0 = time.perf_counter()
     jax.block_until_ready(fn(*args))
     first = time.perf_counter() - t0
-    times = []
+    wall, cpu = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t0)
-    return first, statistics.median(times)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return first, min(wall), min(cpu)
 
 
 def main() -> None:
@@ -68,7 +73,11 @@ def main() -> None:
         for mq in args.mix_queries if enc == "mix" else ["own"]:
             variants.append((f"{enc}/{mq}" if enc == "mix" else enc, enc, mq))
 
-    header = f"{'encoder':10s} {'params':>8s} {'fwd/s':>10s} {'fwd+bwd/s':>10s} {'compile s':>10s}"
+    print("agent-steps per wall second (/s) and per CPU second (/cpu-s), best of --repeats")
+    header = (
+        f"{'encoder':10s} {'params':>8s} {'fwd/s':>9s} {'fwd/cpu-s':>10s} {'fwd+bwd/s':>10s} "
+        f"{'f+b/cpu-s':>10s} {'compile s':>10s}"
+    )
     print(header)
     print("-" * len(header))
     for label, enc, mq in variants:
@@ -92,11 +101,12 @@ def main() -> None:
 
         fwd = jax.jit(net.apply)
         bwd = jax.jit(jax.grad(loss))
-        c1, t_fwd = _time(fwd, (params, obs), args.repeats)
-        c2, t_bwd = _time(bwd, (params, obs, actions), args.repeats)
+        c1, t_fwd, cpu_fwd = _time(fwd, (params, obs), args.repeats)
+        c2, t_bwd, cpu_bwd = _time(bwd, (params, obs, actions), args.repeats)
         print(
-            f"{label:10s} {nets.num_params(params):8d} {batch / t_fwd:10.0f} "
-            f"{batch / t_bwd:10.0f} {c1 + c2:10.1f}"
+            f"{label:10s} {nets.num_params(params):8d} {batch / t_fwd:9.0f} "
+            f"{batch / cpu_fwd:10.0f} {batch / t_bwd:10.0f} {batch / cpu_bwd:10.0f} "
+            f"{c1 + c2:10.1f}"
         )
 
 

@@ -3,7 +3,7 @@
 A run directory holds `checkpoints/<iteration>/` with three orbax items:
   * `train`: the whole `TrainState` (parameters, optimiser and normaliser state, the env batch,
     RNG keys as raw key data, counters), so a resumed run continues bit-for-bit;
-  * `policy`: per learned team, its parameters and observation statistics (what
+  * `policy_<team>`: per learned team, its parameters and observation statistics (what
     `load_policy` reads, without rebuilding any env);
   * `meta`: JSON with the train, env and network configs, counters and the format version.
 Orbax writes each step into a temporary directory and renames it when complete, so a kill during
@@ -33,6 +33,11 @@ class CheckpointError(ValueError):
     """A missing, unreadable or mismatched checkpoint."""
 
 
+def _short(err: Exception, limit: int = 300) -> str:
+    text = f"{type(err).__name__}: {err}"
+    return text if len(text) <= limit else text[:limit] + " ..."
+
+
 def _is_key(x: Any) -> bool:
     return hasattr(x, "dtype") and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
 
@@ -49,12 +54,27 @@ def data_to_keys(template: Any, tree: Any) -> Any:
     )
 
 
+def _flat(tree: Any) -> dict[str, Any]:
+    """Leaves by position ("l00000", ...), without zero-size ones (orbax refuses to save those;
+    a 1-evader scene has an empty teammate axis)."""
+    return {f"l{i:05d}": x for i, x in enumerate(jax.tree.leaves(tree)) if np.size(x)}
+
+
+def _unflat(template: Any, flat: dict[str, Any]) -> Any:
+    leaves, treedef = jax.tree.flatten(template)
+    values = [
+        flat[f"l{i:05d}"] if np.size(t) else np.zeros(t.shape, t.dtype)
+        for i, t in enumerate(leaves)
+    ]
+    return jax.tree.unflatten(treedef, values)
+
+
 def _manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:
     options = ocp.CheckpointManagerOptions(max_to_keep=MAX_TO_KEEP, create=create)
     return ocp.CheckpointManager(
         (run_dir / CHECKPOINT_DIR).absolute(),
         options=options,
-        item_names=("train", "policy", "meta"),
+        item_names=("train", "meta", *(f"policy_{t}" for t in TEAMS)),
     )
 
 
@@ -62,8 +82,8 @@ def save(run_dir: str | Path, trainer: Any, train_state: Any) -> int:
     """Writes a checkpoint of `train_state` (blocking); returns its iteration."""
     run_dir = Path(run_dir)
     step = int(train_state.iteration)
-    policy = {
-        team: {"params": ts.params, "normalizer": ts.normalizer}
+    policies = {
+        f"policy_{team}": ocp.args.StandardSave({"params": ts.params, "normalizer": ts.normalizer})
         for team, ts in train_state.teams.items()
     }
     meta = {
@@ -79,8 +99,8 @@ def save(run_dir: str | Path, trainer: Any, train_state: Any) -> int:
         mngr.save(
             step,
             args=ocp.args.Composite(
-                train=ocp.args.StandardSave(keys_to_data(train_state)),
-                policy=ocp.args.StandardSave(policy),
+                train=ocp.args.StandardSave(_flat(keys_to_data(train_state))),
+                **policies,
                 meta=ocp.args.JsonSave(meta),
             ),
             force=True,
@@ -109,7 +129,9 @@ def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
         with _manager(run_dir, create=False) as mngr:
             meta = mngr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
     except Exception as err:  # orbax raises many types for a damaged step
-        raise CheckpointError(f"checkpoint {step} in {run_dir} is unreadable: {err}") from None
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} is unreadable: {_short(err)}"
+        ) from None
     required = ("format_version", "env_config", "train_config", "network_configs", "num_actions")
     if not isinstance(meta, dict) or any(k not in meta for k in required):
         raise CheckpointError(f"checkpoint {step} in {run_dir} has malformed metadata")
@@ -170,15 +192,13 @@ def restore_policy_params(
         with _manager(run_dir, create=False) as mngr:
             restored = mngr.restore(
                 meta["step"],
-                args=ocp.args.Composite(
-                    policy=ocp.args.StandardRestore({team: abstract}, strict=False)
-                ),
-            ).policy
+                args=ocp.args.Composite(**{f"policy_{team}": ocp.args.StandardRestore(abstract)}),
+            )[f"policy_{team}"]
     except Exception as err:
         raise CheckpointError(
-            f"the {team} policy in {run_dir} (step {meta['step']}) cannot be restored: {err}"
+            f"the {team} policy in {run_dir} (step {meta['step']}) cannot be restored: {_short(err)}"
         ) from None
-    return network, restored[team], net_config, meta
+    return network, restored, net_config, meta
 
 
 def load_policy(
@@ -222,11 +242,14 @@ def restore_train_state(run_dir: str | Path, trainer: Any) -> Any:
     try:
         with _manager(run_dir, create=False) as mngr:
             restored = mngr.restore(
-                step, args=ocp.args.Composite(train=ocp.args.StandardRestore(abstract))
+                step, args=ocp.args.Composite(train=ocp.args.StandardRestore(_flat(abstract)))
             ).train
     except Exception as err:
-        raise CheckpointError(f"checkpoint {step} in {run_dir} cannot be restored: {err}") from None
-    restored = data_to_keys(template, jax.tree.map(np.asarray, restored))
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} cannot be restored: {_short(err)}"
+        ) from None
+    restored = _unflat(abstract, jax.tree.map(np.asarray, restored))
+    restored = data_to_keys(template, restored)
     state = jax.tree.map(jnp.asarray, restored)
     env_state = jax.device_put(state.env_state, trainer.batch_sharding)
     teams = jax.device_put(state.teams, trainer.replicated)

@@ -54,9 +54,7 @@ def ppo_loss(
     adv = (adv - adv_mean) / adv_std
     log_ratio = new_log_prob - batch.log_prob
     ratio = jnp.exp(log_ratio)
-    surrogate = jnp.minimum(
-        ratio * adv, jnp.clip(ratio, 1 - clip_epsilon, 1 + clip_epsilon) * adv
-    )
+    surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_epsilon, 1 + clip_epsilon) * adv)
     policy_loss = -masked_mean(surrogate, mask)
     value_loss = 0.5 * masked_mean((batch.returns - value) ** 2, mask)
     entropy_mean = masked_mean(entropy(logits), mask)

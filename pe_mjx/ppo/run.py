@@ -89,8 +89,11 @@ def train(
     steps_done = int(state.env_steps)
     with Progress(*columns, disable=not progress) as bar:
         task = bar.add_task(
-            config.preset, total=total * config.steps_per_iteration, completed=steps_done,
-            speed="", success="",
+            config.preset,
+            total=total * config.steps_per_iteration,
+            completed=steps_done,
+            speed="",
+            success="",
         )
         tic = time.perf_counter()
         for it in range(start, end):

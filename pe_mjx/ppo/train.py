@@ -112,6 +112,7 @@ def learned_policy(
 
     `obs` is one team's observation dict with any leading dims ([A, ...] for one arena).
     """
+
     def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
         logits, _ = network.apply(params, normalize_obs(obs, normalizer))
         return greedy_actions(logits) if deterministic else sample_actions(logits, rng)
@@ -379,7 +380,8 @@ class Trainer:
             other = "evader" if team == "pursuer" else "pursuer"
             pair = {team: current[team], other: self.scripted[other]}
             rng, key = jax.random.split(rng)
-            final = play_episodes(self.eval_env, pair, key, self.config.eval_envs)
+            keys = jax.random.split(key, self.config.eval_envs)
+            final = play_episodes(self.eval_env, pair, keys)
             for k, v in final.metrics.items():
                 if k.startswith("episode/"):
                     metrics[f"eval/{team}_vs_scripted/{k[len('episode/') :]}"] = jnp.mean(v)

@@ -1,0 +1,806 @@
+"""The viewer's web app: viser server, GUI, and the loop thread that steps and streams the arenas.
+
+Threads: viser runs GUI callbacks on its own pool; they only post commands to a queue. One loop
+thread owns the frame source (a live run, a replay, or the training view's run) and the scene: it
+runs the queued commands, advances the source at the chosen speed and pushes each frame to every
+browser inside one ``server.atomic()`` block. An error in a command (a bad checkpoint path, a
+scene that cannot be placed) is shown in the GUI and printed on stderr; the loop keeps going.
+Browser tabs come and go (viser replays the scene to a new tab); the server never stops for them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import queue
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_mjx.config import PRESETS, TEAMS, EnvConfig, get_preset
+from pe_mjx.env import BACKENDS, CAUSE_NAMES
+from pe_mjx.trajectory import Trajectory
+from pe_mjx.viewer.live import (
+    LiveRun,
+    PolicyError,
+    TeamPolicy,
+    fixed_policy,
+    learned_policy,
+    load_team_policy,
+)
+from pe_mjx.viewer.replay import ReplaySource, timestamp, unique_stem, write_recording
+from pe_mjx.viewer.scene import (
+    CAUSE_RGB,
+    TEAM_RGB,
+    ArenaScene,
+    TrailBuffer,
+    configure_lighting,
+)
+
+HOLD_SECONDS = 1.5
+"""How long the last frame of a finished episode stays on screen before the next one starts."""
+MAX_SPEED = 120.0
+"""Top of the speed slider, in env steps per second."""
+COUNTER_PERIOD = 0.25
+"""Seconds between counter-table refreshes."""
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ViewerOptions:
+    """Everything the viewer starts with (the `pe-mjx view` flags map onto these)."""
+
+    preset: str = "20-5-8"
+    pursuers: str = "scripted"
+    evaders: str = "scripted"
+    arenas: int = 1
+    backend: str = "mjx"
+    seed: int = 0
+    speed: float = 10.0
+    """Env steps per second (0: as fast as the machine goes)."""
+    trails: bool = True
+    trail_length: int = 30
+    deterministic: bool = False
+    loop: bool = True
+    """Start new episodes when every arena is done (replays restart from frame 0)."""
+    play: bool = True
+    host: str = "127.0.0.1"
+    port: int = 8080
+    record_dir: Path = Path("recordings")
+    verbose: bool = True
+
+
+class LiveSource:
+    """A `LiveRun` as a frame source, with its trail buffer."""
+
+    kind = "live"
+
+    def __init__(self, run: LiveRun, trail_length: int):
+        self.run = run
+        self.config = run.config
+        self.num_arenas = run.num_arenas
+        self.trails = TrailBuffer(trail_length)
+        self.trails.push(run.positions())
+
+    @property
+    def at_end(self) -> bool:
+        return self.run.done
+
+    def advance(self) -> bool:
+        self.run.step()
+        self.trails.push(self.run.positions())
+        return True
+
+    def reset(self, seed: int) -> None:
+        self.run.reset(seed)
+        self.trails.clear()
+        self.trails.push(self.run.positions())
+
+    def frame(self):
+        return self.run.frame()
+
+    def trail(self) -> np.ndarray | None:
+        return self.trails.array()
+
+    def counters(self) -> list[dict[str, Any]]:
+        return self.run.counters()
+
+
+def counters_markdown(rows: list[dict[str, Any]], config: EnvConfig, label: str = "t") -> str:
+    """A Markdown table of `arena_counters` rows (plus totals): time, active agents per team,
+    evaders captured, and agents collided per cause (wall / obstacle / teammate / opponent)."""
+    causes = [name for code, name in CAUSE_NAMES.items() if name != "capture"]
+    p, e = config.pursuer.num_agents, config.evader.num_agents
+    lines = [
+        f"| arena | {label} (s) | pursuers | evaders | captured | collided w/o/t/o |",
+        "|---|---|---|---|---|---|",
+    ]
+
+    def line(name: str, time_s: str, row: dict[str, Any], n: int) -> str:
+        cells = [
+            name,
+            time_s,
+            f"{row['pursuers']}/{p * n}",
+            f"{row['evaders']}/{e * n}",
+            str(row["captured"]),
+            "/".join(str(row[c]) for c in causes),
+        ]
+        return "| " + " | ".join(cells) + " |"
+
+    for b, row in enumerate(rows):
+        mark = " done" if row.get("done") else ""
+        lines.append(line(f"{b}{mark}", f"{row['time']:.1f}", row, 1))
+    if len(rows) > 1:
+        total = {k: sum(r[k] for r in rows) for k in ("pursuers", "evaders", "captured", *causes)}
+        lines.append(line("all", "", total, len(rows)))
+    return "\n".join(lines)
+
+
+def legend_markdown() -> str:
+    def swatch(rgb: tuple[int, int, int], text: str) -> str:
+        hex_ = "#{:02x}{:02x}{:02x}".format(*rgb)
+        return f'<span style="color:{hex_}">&#9679;</span> {text}'
+
+    parts = [swatch(TEAM_RGB[t], f"{t}s") for t in TEAMS]
+    parts.append(swatch((150, 150, 150), "incapacitated; marker above it:"))
+    parts += [swatch(rgb, CAUSE_NAMES[code]) for code, rgb in CAUSE_RGB.items()]
+    return " &nbsp; ".join(parts)
+
+
+class Viewer:
+    """The running app. Build it with `start_viewer`; stop it with `stop()`."""
+
+    def __init__(
+        self,
+        options: ViewerOptions,
+        replay: Trajectory | None = None,
+        training: bool = False,
+    ):
+        import viser
+
+        if replay is None and not training:
+            get_preset(options.preset)  # fail early, with the list of presets
+        if options.backend not in BACKENDS:
+            raise ValueError(f"unknown backend {options.backend!r}; expected one of {BACKENDS}")
+        if options.arenas < 1:
+            raise ValueError(f"arenas must be >= 1, got {options.arenas}")
+        self.options = options
+        self.mode = "replay" if replay is not None else ("training" if training else "live")
+        self.server = viser.ViserServer(
+            host=options.host, port=options.port, label="pe-mjx", verbose=False
+        )
+        configure_lighting(self.server)
+        self.source: LiveSource | ReplaySource | None = None
+        self.scene: ArenaScene | None = None
+        self.playing = options.play
+        self.speed = options.speed
+        self.loop_episodes = options.loop
+        self.frames_streamed = 0
+        self.errors: list[str] = []
+        self.recordings: list[Path] = []
+        self._serializer: Any = None
+        self._commands: queue.Queue[Callable[[], None]] = queue.Queue()
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._step_once = False
+        self._hold_until: float | None = None
+        self._last_counters = 0.0
+        self._last_frame_time: float | None = None
+        self._training: dict[str, Any] = {}
+        self._build_gui()
+        self.server.on_client_connect(self._on_connect)
+        self.server.on_client_disconnect(self._on_disconnect)
+        if replay is not None:
+            self.post(lambda: self._set_source(ReplaySource(replay, options.trail_length)))
+        elif not training:
+            self.post(self._start_live)
+        self._thread = threading.Thread(target=self._loop, name="pe-mjx-viewer", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ public surface
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.server.get_host()}:{self.server.get_port()}"
+
+    @property
+    def port(self) -> int:
+        return self.server.get_port()
+
+    def post(self, command: Callable[[], None]) -> None:
+        """Runs `command` on the loop thread (the only thread that touches source and scene)."""
+        self._commands.put(command)
+
+    def call(self, command: Callable[[], Any], timeout: float = 300.0) -> Any:
+        """Runs `command` on the loop thread and returns its result (for tests and scripts)."""
+        done = threading.Event()
+        box: dict[str, Any] = {}
+
+        def run() -> None:
+            try:
+                box["value"] = command()
+            except Exception as err:
+                box["error"] = err
+            finally:
+                done.set()
+
+        self.post(run)
+        if not done.wait(timeout):
+            raise TimeoutError(f"viewer command did not finish within {timeout} s")
+        if "error" in box:
+            raise box["error"]
+        return box.get("value")
+
+    def wait_ready(self, timeout: float = 600.0) -> None:
+        """Blocks until the first frame is on the server (or raises the startup error)."""
+        if not self._ready.wait(timeout):
+            raise TimeoutError(f"the viewer did not show a frame within {timeout} s")
+        if self.source is None and self.mode != "training":
+            raise RuntimeError("the viewer failed to start: " + "; ".join(self.errors))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=30)
+        self.server.stop()
+
+    def num_clients(self) -> int:
+        return len(self.server.get_clients())
+
+    # ------------------------------------------------------------------ errors and status
+
+    def _report(self, message: str) -> None:
+        self.errors.append(message)
+        print(f"pe-mjx view: error: {message}", file=sys.stderr, flush=True)
+        self.gui_error.content = f"**Error:** {message}"
+        self.gui_error.visible = True
+        for client in self.server.get_clients().values():
+            with contextlib.suppress(Exception):
+                client.add_notification(
+                    "pe-mjx error", message, color="red", auto_close_seconds=15.0
+                )
+
+    def _clear_error(self) -> None:
+        self.gui_error.visible = False
+
+    def _status(self, text: str) -> None:
+        self.gui_status.content = text
+        if self.options.verbose:
+            print(f"pe-mjx view: {text}", flush=True)
+
+    # ------------------------------------------------------------------ GUI
+
+    def _build_gui(self) -> None:
+        gui = self.server.gui
+        o = self.options
+        self.gui_status = gui.add_markdown("starting...")
+        self.gui_error = gui.add_markdown("", visible=False)
+        with gui.add_folder("Playback"):
+            self.gui_play = gui.add_button("Play", icon=None)
+            self.gui_pause = gui.add_button("Pause")
+            self.gui_step = gui.add_button("Step")
+            self.gui_speed = gui.add_slider(
+                "Steps/s", min=1.0, max=MAX_SPEED, step=1.0, initial_value=o.speed or MAX_SPEED
+            )
+            self.gui_max_speed = gui.add_checkbox("Max speed", initial_value=o.speed <= 0)
+            self.gui_trails = gui.add_checkbox("Trails", initial_value=o.trails)
+            self.gui_loop = gui.add_checkbox("Loop episodes", initial_value=o.loop)
+            self.gui_frame = gui.add_slider(
+                "Frame", min=0, max=1, step=1, initial_value=0, visible=self.mode == "replay"
+            )
+        self.gui_counters = gui.add_markdown("")
+        with gui.add_folder("Scene", visible=self.mode == "live") as self.gui_scene_folder:
+            preset = o.preset if o.preset in PRESETS else next(iter(PRESETS))
+            cfg = get_preset(preset)
+            self.gui_preset = gui.add_dropdown("Preset", tuple(PRESETS), initial_value=preset)
+            self.gui_pursuers = gui.add_number(
+                "Pursuers", cfg.pursuer.num_agents, min=1, max=1000, step=1
+            )
+            self.gui_evaders = gui.add_number(
+                "Evaders", cfg.evader.num_agents, min=1, max=1000, step=1
+            )
+            self.gui_obstacles = gui.add_number(
+                "Obstacles", cfg.arena.num_obstacles, min=0, max=1000, step=1
+            )
+            self.gui_arenas = gui.add_number("Arenas", o.arenas, min=1, max=64, step=1)
+            self.gui_backend = gui.add_dropdown("Backend", BACKENDS, initial_value=o.backend)
+            self.gui_seed = gui.add_number("Seed", o.seed, step=1)
+            self.gui_reset = gui.add_button("Reset")
+            self.gui_apply = gui.add_button("Apply scene")
+        with gui.add_folder("Policies", visible=self.mode == "live") as self.gui_policy_folder:
+            self.gui_pursuer_policy = gui.add_text("Pursuer policy", o.pursuers)
+            self.gui_evader_policy = gui.add_text("Evader policy", o.evaders)
+            self.gui_deterministic = gui.add_checkbox("Greedy", initial_value=o.deterministic)
+            self.gui_load = gui.add_button("Load policies")
+        with gui.add_folder("Attention", visible=self.mode != "replay") as self.gui_att_folder:
+            self.gui_att_show = gui.add_checkbox("Show attention", initial_value=False)
+            self.gui_att_team = gui.add_dropdown("Team", TEAMS, initial_value="pursuer")
+            self.gui_att_arena = gui.add_number("Arena", 0, min=0, step=1)
+            self.gui_att_agent = gui.add_number("Agent", 0, min=0, step=1)
+            self.gui_att_info = gui.add_markdown("")
+        with gui.add_folder("Record"):
+            self.gui_record = gui.add_button("Start recording")
+            self.gui_export = gui.add_button("Export replay", visible=self.mode == "replay")
+            self.gui_record_info = gui.add_markdown("")
+        self.gui_training = gui.add_markdown("", visible=self.mode == "training")
+        gui.add_markdown(legend_markdown())
+
+        @self.gui_play.on_click
+        def _(_: Any) -> None:
+            self.post(lambda: self._set_playing(True))
+
+        @self.gui_pause.on_click
+        def _(_: Any) -> None:
+            self.post(lambda: self._set_playing(False))
+
+        @self.gui_step.on_click
+        def _(_: Any) -> None:
+            self.post(self._request_step)
+
+        @self.gui_speed.on_update
+        def _(_: Any) -> None:
+            self.post(self._read_speed)
+
+        @self.gui_max_speed.on_update
+        def _(_: Any) -> None:
+            self.post(self._read_speed)
+
+        @self.gui_trails.on_update
+        def _(_: Any) -> None:
+            self.post(self._apply_trails)
+
+        @self.gui_loop.on_update
+        def _(_: Any) -> None:
+            self.loop_episodes = bool(self.gui_loop.value)
+
+        @self.gui_frame.on_update
+        def _(event: Any) -> None:
+            if event.client is not None:  # our own slider moves during playback come with None
+                value = int(self.gui_frame.value)
+                self.post(lambda: self._seek(value))
+
+        @self.gui_preset.on_update
+        def _(_: Any) -> None:
+            cfg = get_preset(self.gui_preset.value)
+            self.gui_pursuers.value = cfg.pursuer.num_agents
+            self.gui_evaders.value = cfg.evader.num_agents
+            self.gui_obstacles.value = cfg.arena.num_obstacles
+
+        @self.gui_reset.on_click
+        def _(_: Any) -> None:
+            seed = int(self.gui_seed.value)
+            self.post(lambda: self._reset(seed))
+
+        @self.gui_apply.on_click
+        def _(_: Any) -> None:
+            self.post(self._apply_scene)
+
+        @self.gui_load.on_click
+        def _(_: Any) -> None:
+            self.post(self._load_policies)
+
+        for handle in (
+            self.gui_att_show,
+            self.gui_att_team,
+            self.gui_att_arena,
+            self.gui_att_agent,
+        ):
+            handle.on_update(lambda _: self.post(self._push_frame_if_paused))
+
+        @self.gui_record.on_click
+        def _(_: Any) -> None:
+            self.post(self._toggle_recording)
+
+        @self.gui_export.on_click
+        def _(_: Any) -> None:
+            self.post(self._export_replay)
+
+    def _on_connect(self, client: Any) -> None:
+        if self.scene is not None:
+            position, look_at = self.scene.camera_pose()
+            client.camera.position = position
+            client.camera.look_at = look_at
+        if self.options.verbose:
+            print(f"pe-mjx view: client {client.client_id} connected ({self.num_clients()} open)")
+
+    def _on_disconnect(self, client: Any) -> None:
+        if self.options.verbose:
+            print(f"pe-mjx view: client {client.client_id} left ({self.num_clients()} open)")
+
+    # ------------------------------------------------------------------ commands (loop thread)
+
+    def _set_playing(self, playing: bool) -> None:
+        self.playing = playing
+        self._last_frame_time = None
+
+    def _request_step(self) -> None:
+        self.playing = False
+        self._step_once = True
+
+    def _read_speed(self) -> None:
+        self.speed = 0.0 if self.gui_max_speed.value else float(self.gui_speed.value)
+
+    def _apply_trails(self) -> None:
+        if self.scene is not None:
+            self.scene.set_trails_visible(bool(self.gui_trails.value))
+            self._push_frame()
+
+    def _seek(self, index: int) -> None:
+        if isinstance(self.source, ReplaySource):
+            self.source.seek(index)
+            self._push_frame()
+
+    def _reset(self, seed: int) -> None:
+        if isinstance(self.source, ReplaySource):
+            self.source.seek(0)
+        elif isinstance(self.source, LiveSource):
+            self.source.reset(seed)
+            self._status(self._live_status())
+        self._hold_until = None
+        self._push_frame()
+
+    def _live_status(self) -> str:
+        assert isinstance(self.source, LiveSource)
+        run = self.source.run
+        pols = ", ".join(f"{t}s: `{run.policies[t].label}`" for t in TEAMS)
+        return (
+            f"**{self.mode}** `{run.config.name}` x{run.num_arenas}, {run.backend}, "
+            f"seed {run.seed}; {pols}"
+        )
+
+    def _policies(self, config: EnvConfig, specs: dict[str, str]) -> dict[str, TeamPolicy]:
+        """Each team's policy; a team whose policy fails falls back to scripted (error shown)."""
+        out = {}
+        deterministic = bool(self.gui_deterministic.value)
+        for team in TEAMS:
+            try:
+                out[team] = load_team_policy(specs[team], config, team, deterministic)
+            except PolicyError as err:
+                self._report(f"{err} (the {team}s play scripted instead)")
+                out[team] = load_team_policy("scripted", config, team)
+        return out
+
+    def _start_live(self) -> None:
+        o = self.options
+        config = get_preset(o.preset)
+        self._status(f"compiling `{config.name}` ({o.backend})...")
+        policies = self._policies(config, {"pursuer": o.pursuers, "evader": o.evaders})
+        run = LiveRun(config, policies, o.arenas, o.backend, o.seed)
+        self._set_source(LiveSource(run, o.trail_length))
+        self._status(self._live_status())
+
+    def _scene_config(self) -> EnvConfig:
+        base = get_preset(self.gui_preset.value)
+        counts = (
+            int(self.gui_pursuers.value),
+            int(self.gui_evaders.value),
+            int(self.gui_obstacles.value),
+        )
+        have = (base.pursuer.num_agents, base.evader.num_agents, base.arena.num_obstacles)
+        return base if counts == have else base.with_counts(*counts)
+
+    def _apply_scene(self) -> None:
+        config = self._scene_config()  # ValueError (cannot be placed) is reported by the loop
+        arenas = int(self.gui_arenas.value)
+        backend = str(self.gui_backend.value)
+        seed = int(self.gui_seed.value)
+        if arenas < 1:
+            raise ValueError(f"arenas must be >= 1, got {arenas}")
+        specs = {
+            "pursuer": str(self.gui_pursuer_policy.value),
+            "evader": str(self.gui_evader_policy.value),
+        }
+        self._status(f"compiling `{config.name}` ({backend})...")
+        policies = self._policies(config, specs)
+        run = LiveRun(config, policies, arenas, backend, seed)
+        self._set_source(LiveSource(run, self.options.trail_length))
+        self._clear_error()
+        self._status(self._live_status())
+
+    def _load_policies(self) -> None:
+        if not isinstance(self.source, LiveSource):
+            return
+        run = self.source.run
+        specs = {
+            "pursuer": str(self.gui_pursuer_policy.value),
+            "evader": str(self.gui_evader_policy.value),
+        }
+        deterministic = bool(self.gui_deterministic.value)
+        failed = False
+        for team in TEAMS:
+            current = run.policies[team]
+            same_mode = current.deterministic in (None, deterministic)
+            if specs[team].strip() == current.label and same_mode:
+                continue  # unchanged: no reload, no recompilation
+            try:
+                policy = load_team_policy(specs[team], run.config, team, deterministic)
+            except PolicyError as err:
+                self._report(f"{err} (the {team}s keep `{run.policies[team].label}`)")
+                failed = True
+                continue
+            self._status(f"compiling the {team} policy...")
+            run.set_policy(team, policy)
+        if not failed:
+            self._clear_error()
+        self._status(self._live_status())
+        self._push_frame()
+
+    def _set_source(self, source: LiveSource | ReplaySource) -> None:
+        rebuild = (
+            self.scene is None
+            or self.scene.config != source.config
+            or self.scene.num_arenas != source.num_arenas
+        )
+        self.source = source
+        if rebuild:
+            if self.scene is not None:
+                self.scene.remove()
+            self.scene = ArenaScene(self.server, source.config, source.num_arenas)
+            self.scene.set_trails_visible(bool(self.gui_trails.value))
+            position, look_at = self.scene.camera_pose()
+            self.server.initial_camera.position = position
+            self.server.initial_camera.look_at = look_at
+            for client in self.server.get_clients().values():
+                client.camera.position = position
+                client.camera.look_at = look_at
+        if isinstance(source, ReplaySource):
+            self.gui_frame.max = max(1, source.num_frames - 1)
+            self._status(
+                f"**replay** `{source.config.name}` x{source.num_arenas}, "
+                f"{source.num_frames} frames"
+            )
+        self.gui_att_arena.max = source.num_arenas - 1
+        self._hold_until = None
+        self._push_frame()
+        self._ready.set()
+
+    # -- attention
+
+    def _attention(self) -> Any:
+        if not isinstance(self.source, LiveSource) or not self.gui_att_show.value:
+            self.gui_att_info.content = ""
+            return None
+        run = self.source.run
+        team = str(self.gui_att_team.value)
+        arena = int(np.clip(int(self.gui_att_arena.value), 0, run.num_arenas - 1))
+        agent = int(np.clip(int(self.gui_att_agent.value), 0, run.config.team(team).num_agents - 1))
+        overlay = run.attention(team, arena, agent)
+        if overlay is None:
+            label = run.policies[team].label
+            self.gui_att_info.content = (
+                f"The {team} policy `{label}` has no attention weights (only MIX policies do)."
+            )
+            return None
+        order = np.argsort(-overlay.weights)[:5]
+        counts: dict[str, int] = {}
+        names = []
+        for kind in overlay.kinds:
+            names.append(f"{kind[:-1]} {counts.get(kind, 0)}")
+            counts[kind] = counts.get(kind, 0) + 1
+        own = run.own_attention(team, arena, agent)
+        top = ", ".join(f"{names[i]}: {overlay.weights[i]:.2f}" for i in order)
+        self.gui_att_info.content = f"{team} {agent} in arena {arena}; self {own:.2f}; {top}"
+        return overlay
+
+    # -- recording
+
+    def _toggle_recording(self) -> None:
+        if self._serializer is None:
+            self._serializer = self.server.get_scene_serializer()
+            self._last_record_time = time.monotonic()
+            self.gui_record.label = "Stop recording"
+            self.gui_record_info.content = "recording..."
+            return
+        serializer, self._serializer = self._serializer, None
+        self.gui_record.label = "Start recording"
+        serializer.insert_sleep(max(time.monotonic() - self._last_record_time, 0.0))
+        data = serializer.serialize()
+        stem = unique_stem(Path(self.options.record_dir), f"pe-mjx-{timestamp()}")
+        paths = write_recording(stem, data)
+        self._saved(paths)
+
+    def _export_replay(self) -> None:
+        from pe_mjx.viewer.replay import export_trajectory
+
+        if not isinstance(self.source, ReplaySource):
+            return
+        self.gui_record_info.content = "exporting..."
+        stem = unique_stem(Path(self.options.record_dir), f"pe-mjx-replay-{timestamp()}")
+        speed = self.speed / (1.0 / self.source.config.control_dt) if self.speed > 0 else 4.0
+        paths = export_trajectory(self.source.traj, stem, speed, self.options.trail_length)
+        self._saved(paths)
+
+    def _saved(self, paths: tuple[Path, Path]) -> None:
+        self.recordings.extend(paths)
+        text = " and ".join(f"`{p}`" for p in paths)
+        self.gui_record_info.content = f"saved {text}"
+        if self.options.verbose:
+            print(f"pe-mjx view: saved {paths[0]} and {paths[1]}", flush=True)
+        for client in self.server.get_clients().values():
+            client.add_notification("Recording saved", text, auto_close_seconds=10.0)
+
+    # -- training view
+
+    def training_update(self, trainer: Any, train_state: Any, metrics: dict[str, float]) -> None:
+        """`train(on_iteration=...)` callback: show the latest policies (called by the trainer).
+
+        Copies the learned parameters to the host (the trainer donates its state buffers to the
+        next iteration) and hands them to the loop thread; the first call builds the live run.
+        """
+        import jax
+
+        learned = {}
+        for team in getattr(trainer, "learned", ()):
+            ts = train_state.teams[team]
+            learned[team] = jax.device_get({"params": ts.params, "normalizer": ts.normalizer})
+        info = {
+            "iteration": int(train_state.iteration),
+            "env_steps": int(train_state.env_steps),
+            **metrics,
+        }
+        if not self._training:
+            self._training["trainer"] = trainer
+            self.post(lambda: self._start_training(trainer, learned))
+        else:
+            self.post(lambda: self._update_training(learned))
+        self.post(lambda: self._show_training(info))
+
+    def _start_training(self, trainer: Any, learned: dict[str, Any]) -> None:
+        config = trainer.env_config
+        policies: dict[str, TeamPolicy] = {}
+        for team in TEAMS:
+            if team in learned:
+                policies[team] = learned_policy(
+                    "training",
+                    trainer.networks[team],
+                    learned[team]["params"],
+                    learned[team]["normalizer"],
+                    trainer.network_configs[team].encoder,
+                )
+            else:
+                label = str(getattr(trainer.config, team))
+                policies[team] = fixed_policy(label, trainer.fixed[team])
+        backend = trainer.config.backend
+        self._status(f"compiling `{config.name}` ({backend})...")
+        run = LiveRun(config, policies, self.options.arenas, backend, self.options.seed)
+        self._set_source(LiveSource(run, self.options.trail_length))
+        self._status(self._live_status())
+
+    def _update_training(self, learned: dict[str, Any]) -> None:
+        if isinstance(self.source, LiveSource):
+            for team, params in learned.items():
+                self.source.run.set_params(team, params)
+
+    def _show_training(self, info: dict[str, Any]) -> None:
+        lines = [f"**training** iteration {info['iteration']}, {info['env_steps']:,} env steps"]
+        for key in sorted(info):
+            if key.startswith(("eval/", "perf/env_steps")) and np.isfinite(info[key]):
+                lines.append(f"- `{key}`: {info[key]:.3g}")
+        self.gui_training.content = "\n".join(lines)
+
+    # ------------------------------------------------------------------ the loop
+
+    def _push_frame_if_paused(self) -> None:
+        if not self.playing:
+            self._push_frame()
+
+    def _push_frame(self) -> None:
+        if self.source is None or self.scene is None:
+            return
+        trail = self.source.trail() if self.gui_trails.value else None
+        if self._serializer is not None:
+            now = time.monotonic()
+            self._serializer.insert_sleep(max(now - self._last_record_time, 0.0))
+            self._last_record_time = now
+        self.scene.update(self.source.frame(), trail, self._attention())
+        self.frames_streamed += 1
+        if isinstance(self.source, ReplaySource):
+            self.gui_frame.value = self.source.index
+        now = time.monotonic()
+        if now - self._last_counters >= COUNTER_PERIOD or not self.playing:
+            self._last_counters = now
+            label = "frame t" if isinstance(self.source, ReplaySource) else "t"
+            self.gui_counters.content = counters_markdown(
+                self.source.counters(), self.source.config, label
+            )
+
+    def _advance(self) -> None:
+        """One step of the source, with episode looping."""
+        source = self.source
+        assert source is not None
+        if source.at_end:
+            if not self.loop_episodes and not self._step_once:
+                return
+            now = time.monotonic()
+            if self._hold_until is None and not self._step_once:
+                self._hold_until = now + HOLD_SECONDS
+                return
+            if self._hold_until is not None and now < self._hold_until and not self._step_once:
+                return
+            self._hold_until = None
+            if isinstance(source, ReplaySource):
+                source.seek(0)
+            else:
+                source.reset(source.run.seed + 1)
+                self.gui_seed.value = source.run.seed
+                self._status(self._live_status())
+        else:
+            source.advance()
+        self._push_frame()
+
+    def _run_command(self, command: Callable[[], None]) -> None:
+        try:
+            command()
+        except Exception as err:  # never let a command kill the loop
+            message = str(err) or type(err).__name__
+            if not isinstance(err, ValueError | FileExistsError | OSError):
+                traceback.print_exc()
+                message = f"{type(err).__name__}: {message}"
+            self._report(message)
+            if self.source is not None and self.mode == "live" and self.source.kind == "live":
+                self._status(self._live_status())
+        finally:
+            if self.source is None and self.mode != "training" and self.errors:
+                self._ready.set()  # startup failed; wait_ready raises
+
+    def _loop(self) -> None:
+        next_time = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            wait = 0.05
+            if self.source is not None and self.playing and self.speed > 0:
+                wait = max(0.0, min(wait, next_time - now))
+            elif self.source is not None and (self.playing or self._step_once):
+                wait = 0.0
+            try:
+                command = (
+                    self._commands.get(timeout=wait) if wait > 0 else self._commands.get_nowait()
+                )
+            except queue.Empty:
+                command = None
+            if command is not None:
+                self._run_command(command)
+                continue
+            if self.source is None or not (self.playing or self._step_once):
+                continue
+            now = time.monotonic()
+            if self.playing and self.speed > 0:
+                if now < next_time:
+                    continue
+                next_time = max(next_time + 1.0 / self.speed, now)
+            self._run_command(self._advance)
+            self._step_once = False
+
+
+def start_viewer(
+    options: ViewerOptions | None = None,
+    replay: Trajectory | None = None,
+    training: bool = False,
+    wait: bool = True,
+    **overrides: Any,
+) -> Viewer:
+    """Starts the viewer (server, GUI, loop thread) and, with `wait`, blocks until the first frame.
+
+    Args:
+      options: the starting options; keyword `overrides` replace fields of it
+        (``start_viewer(preset="4-1-2", port=0, backend="kinematic")``).
+      replay: a trajectory to replay instead of a live run.
+      training: an empty viewer fed by `Viewer.training_update` (``pe-mjx train --view``).
+      wait: block until the first frame has been sent (not for `training`).
+    """
+    options = dataclasses.replace(options or ViewerOptions(), **overrides)
+    viewer = Viewer(options, replay=replay, training=training)
+    if wait and not training:
+        try:
+            viewer.wait_ready()
+        except BaseException:
+            viewer.stop()
+            raise
+    return viewer
+
+
+__all__ = ["Viewer", "ViewerOptions", "counters_markdown", "start_viewer"]

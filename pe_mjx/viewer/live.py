@@ -1,0 +1,401 @@
+"""The viewer's live simulation: B arenas of the jitted env, each team's policy, attention weights.
+
+No viser here: `LiveRun` steps the env and hands out numpy `Frame`s, counters and attention
+overlays; `pe_mjx.viewer.app` draws them. A team's policy is a `TeamPolicy`: scripted, random, a
+checkpoint (`pe-mjx train --out` directory) or the trainer's current parameters. Learned
+parameters are an *argument* of the jitted step, so the training view swaps in new parameters
+every iteration without recompiling.
+
+One step of the loop (`tick`, jitted whole) is ``env.step`` with the actions decided on the
+previous state, then the policies on the new state: the attention shown with a frame is the one
+that chooses the next move from it. Finished arenas freeze (as in `episodes.play_episodes`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pe_mjx.config import TEAMS, EnvConfig
+from pe_mjx.env import CAPTURE, CAUSE_NAMES, PursuitEvasionEnv, State
+from pe_mjx.policies import POLICIES, make_policy
+from pe_mjx.viewer.scene import AttentionOverlay, Frame
+
+ApplyFn = Callable[[Any, dict[str, jax.Array], jax.Array], tuple[jax.Array, jax.Array | None]]
+"""(params, one team's obs of one arena, rng) -> (int32 actions [A], attention [A, M] or None)."""
+
+
+class PolicyError(ValueError):
+    """A policy that cannot play this team in this scene (bad path, wrong team, wrong sizes)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TeamPolicy:
+    """One team's policy as the viewer runs it."""
+
+    label: str
+    """What the user asked for: "scripted", "random", a run directory, "training"."""
+    apply: ApplyFn
+    params: Any = None
+    """Learned parameters ({"params", "normalizer"}), passed to `apply` as a jit argument."""
+    has_attention: bool = False
+    """Whether `apply` returns MIX own-token attention weights."""
+    deterministic: bool | None = None
+    """Greedy (True) or sampled (False) for learned policies; None for fixed ones."""
+
+
+def fixed_policy(label: str, policy: Callable[[dict, jax.Array], jax.Array]) -> TeamPolicy:
+    """Wraps a plain `policy(obs, rng) -> actions` (scripted, random, a frozen opponent)."""
+
+    def apply(params: Any, obs: dict[str, jax.Array], rng: jax.Array):
+        del params
+        return policy(obs, rng).astype(jnp.int32), None
+
+    return TeamPolicy(label=label, apply=apply)
+
+
+def learned_policy(
+    label: str,
+    network: Any,
+    params: Any,
+    normalizer: Any,
+    encoder: str,
+    deterministic: bool = False,
+) -> TeamPolicy:
+    """A network policy; MIX networks also return their own-token attention (mean over heads).
+
+    Args:
+      network: the `networks.ActorCritic` module.
+      params, normalizer: its variables and observation statistics (host or device arrays).
+      encoder: the network's encoder name ("mix" gives attention weights).
+      deterministic: greedy actions instead of sampling.
+    """
+    from pe_mjx.networks import greedy_actions, sample_actions
+    from pe_mjx.ppo.train import normalize_obs
+
+    with_attention = encoder == "mix"
+
+    def apply(p: Any, obs: dict[str, jax.Array], rng: jax.Array):
+        inputs = normalize_obs(obs, p["normalizer"])
+        attention = None
+        if with_attention:
+            (logits, _), variables = network.apply(p["params"], inputs, mutable=["intermediates"])
+            weights = variables["intermediates"]["encoder"]["attention"][0]  # [A, H, M]
+            attention = jnp.mean(weights, axis=-2)
+        else:
+            logits, _ = network.apply(p["params"], inputs)
+        actions = greedy_actions(logits) if deterministic else sample_actions(logits, rng)
+        return actions.astype(jnp.int32), attention
+
+    return TeamPolicy(
+        label=label,
+        apply=apply,
+        params={"params": params, "normalizer": normalizer},
+        has_attention=with_attention,
+        deterministic=deterministic,
+    )
+
+
+def check_fits(policy: TeamPolicy, config: EnvConfig, team: str) -> None:
+    """Traces the policy on this scene's observation shapes; PolicyError if it does not fit."""
+    from pe_mjx.ppo.checkpoint import dummy_obs
+
+    obs = dummy_obs(config, team)
+    a = config.team(team).num_agents
+    try:
+        actions, attention = jax.eval_shape(policy.apply, policy.params, obs, jax.random.key(0))
+    except Exception as err:
+        raise PolicyError(
+            f"the {team} policy {policy.label!r} does not fit scene {config.name!r}: {err}"
+        ) from None
+    if actions.shape != (a,) or not jnp.issubdtype(actions.dtype, jnp.integer):
+        raise PolicyError(
+            f"the {team} policy {policy.label!r} returns actions of shape {actions.shape}, "
+            f"expected [{a}] integers"
+        )
+    if attention is not None:
+        m = config.num_agents + config.arena.num_obstacles
+        if attention.shape != (a, m):
+            raise PolicyError(
+                f"the {team} policy {policy.label!r} returns attention {attention.shape}, "
+                f"expected {(a, m)}"
+            )
+
+
+def load_team_policy(
+    spec: str, config: EnvConfig, team: str, deterministic: bool = False
+) -> TeamPolicy:
+    """A team policy from a name ("scripted", "random") or a run directory; checked to fit.
+
+    Raises:
+      PolicyError: unknown name, missing or unreadable checkpoint, a run that did not learn this
+        team, or a network whose action count or inputs do not fit the scene.
+    """
+    spec = spec.strip()
+    if team not in TEAMS:
+        raise PolicyError(f"unknown team {team!r}; expected one of {TEAMS}")
+    if spec in POLICIES:
+        policy = fixed_policy(spec, make_policy(spec, config, team))
+    else:
+        from pe_mjx.ppo.checkpoint import CheckpointError, restore_policy_params
+
+        if not spec:
+            raise PolicyError(f"no {team} policy given")
+        path = Path(spec).expanduser()
+        if not path.exists():
+            names = ", ".join(POLICIES)
+            raise PolicyError(f"{team} policy {spec!r}: not one of {names} and no such directory")
+        try:
+            network, state, net_config, meta = restore_policy_params(path, team)
+        except CheckpointError as err:
+            raise PolicyError(str(err)) from None
+        have = int(meta["num_actions"][team])
+        want = config.team(team).num_actions
+        if have != want:
+            raise PolicyError(
+                f"the {team} policy in {spec} has {have} actions but this scene's {team}s "
+                f"have {want}"
+            )
+        params = jax.device_get(state)
+        policy = learned_policy(
+            str(spec),
+            network,
+            params["params"],
+            params["normalizer"],
+            net_config.encoder,
+            deterministic,
+        )
+    check_fits(policy, config, team)
+    return policy
+
+
+def attention_targets(config: EnvConfig, team: str) -> tuple[np.ndarray, tuple[str, ...]]:
+    """For every agent of `team`, the global agent indices of its attention tokens.
+
+    Returns:
+      agent_index int [A, T + O] (teammates in order without itself, then opponents: the
+      observation's entity order) and the kind of each of the T + O + K non-own tokens.
+    """
+    p, e = config.pursuer.num_agents, config.evader.num_agents
+    own = np.arange(p) if team == "pursuer" else np.arange(p, p + e)
+    other = np.arange(p, p + e) if team == "pursuer" else np.arange(p)
+    rows = [np.concatenate([np.delete(own, i), other]) for i in range(len(own))]
+    kinds = ("teammates",) * (len(own) - 1) + ("opponents",) * len(other)
+    kinds += ("obstacles",) * config.arena.num_obstacles
+    return np.stack(rows).astype(np.int64), kinds
+
+
+class LiveRun:
+    """B arenas of one scene, stepped by the jitted env under each team's policy."""
+
+    def __init__(
+        self,
+        config: EnvConfig,
+        policies: dict[str, TeamPolicy],
+        num_arenas: int = 1,
+        backend: str = "mjx",
+        seed: int = 0,
+    ):
+        if num_arenas < 1:
+            raise ValueError(f"arenas must be >= 1, got {num_arenas}")
+        self.config = config
+        self.backend = backend
+        self.num_arenas = num_arenas
+        self.env = PursuitEvasionEnv(config, backend=backend)
+        self.policies = dict(policies)
+        for team in TEAMS:
+            check_fits(self.policies[team], config, team)
+        self._reset_fn = jax.jit(jax.vmap(self.env.reset))
+        self._build()
+        self.reset(seed)
+        self._warm_up()
+
+    # -- jitted functions (rebuilt when a policy changes; learned params stay arguments)
+
+    def _build(self) -> None:
+        env, b = self.env, self.num_arenas
+        applies = {t: self.policies[t].apply for t in TEAMS}
+
+        def decide(state: State, params: dict, rng: jax.Array):
+            actions, attention = {}, {}
+            keys = jax.random.split(rng, len(TEAMS))
+            for key, team in zip(keys, TEAMS, strict=True):
+                act, att = jax.vmap(applies[team], in_axes=(None, 0, 0))(
+                    params[team], state.obs[team], jax.random.split(key, b)
+                )
+                actions[team] = act
+                if att is not None:
+                    attention[team] = att
+            return actions, attention
+
+        def tick(state: State, actions: dict, params: dict, rng: jax.Array):
+            new = jax.vmap(env.step)(state, actions)
+            finished = state.done > 0
+
+            def keep(old, nxt):
+                mask = finished.reshape(finished.shape + (1,) * (nxt.ndim - 1))
+                return jnp.where(mask, old, nxt)
+
+            new = jax.tree.map(keep, state, new)
+            next_actions, attention = decide(new, params, rng)
+            return new, next_actions, attention
+
+        self._decide = jax.jit(decide)
+        self._tick = jax.jit(tick)
+
+    def _warm_up(self) -> None:
+        """Compiles `tick` now (one throw-away step): the first frame of play is not late."""
+        jax.block_until_ready(self._tick(self.state, self._actions, self._params(), self._rng))
+
+    def _params(self) -> dict[str, Any]:
+        return {t: self.policies[t].params for t in TEAMS}
+
+    # -- control
+
+    def reset(self, seed: int) -> None:
+        """New arenas drawn from `seed` (arena i from ``split(key(seed), B)[i]``)."""
+        self.seed = int(seed)
+        key = jax.random.key(self.seed)
+        reset_key, self._rng = jax.random.split(key)
+        self.state = self._reset_fn(jax.random.split(reset_key, self.num_arenas))
+        self._decide_now()
+        self.episode_steps = 0
+
+    def _decide_now(self) -> None:
+        self._rng, key = jax.random.split(self._rng)
+        self._actions, attention = self._decide(self.state, self._params(), key)
+        self._host = self._fetch(attention)
+
+    def set_policy(self, team: str, policy: TeamPolicy) -> None:
+        """Swaps a team's policy (recompiles) and re-decides the pending actions."""
+        check_fits(policy, self.config, team)
+        self.policies[team] = policy
+        self._build()
+        self._decide_now()
+        self._warm_up()
+
+    def set_params(self, team: str, params: Any) -> None:
+        """New learned parameters for a team (same structure; no recompilation)."""
+        self.policies[team] = dataclasses.replace(self.policies[team], params=params)
+
+    def step(self) -> None:
+        """One control step of every arena still playing."""
+        self._rng, key = jax.random.split(self._rng)
+        self.state, self._actions, attention = self._tick(
+            self.state, self._actions, self._params(), key
+        )
+        self._host = self._fetch(attention)
+        self.episode_steps += 1
+
+    def _fetch(self, attention: dict[str, jax.Array]) -> dict[str, Any]:
+        w = self.state.world
+        host = jax.device_get(
+            {
+                "pos": w.pos,
+                "yaw": w.yaw,
+                "active": w.active,
+                "cause": w.cause,
+                "obstacles": w.obstacles,
+                "step": w.step,
+                "done": self.state.done,
+                "attention": attention,
+            }
+        )
+        return host
+
+    # -- what there is to see
+
+    @property
+    def done(self) -> bool:
+        """Every arena has finished its episode."""
+        return bool(np.all(self._host["done"] > 0))
+
+    def frame(self) -> Frame:
+        h = self._host
+        poses = np.concatenate([h["pos"], h["yaw"][..., None]], axis=-1)
+        return Frame(poses=poses, active=h["active"], cause=h["cause"], obstacles=h["obstacles"])
+
+    def positions(self) -> np.ndarray:
+        """[B, N, 2]."""
+        return np.asarray(self._host["pos"])
+
+    def attention(self, team: str, arena: int, agent: int) -> AttentionOverlay | None:
+        """The overlay of agent `agent` (index within its team) of arena `arena`, if MIX."""
+        weights = self._host["attention"].get(team)
+        if weights is None:
+            return None
+        cfg = self.config
+        arena = int(np.clip(arena, 0, self.num_arenas - 1))
+        agent = int(np.clip(agent, 0, cfg.team(team).num_agents - 1))
+        index, kinds = attention_targets(cfg, team)
+        pos = self._host["pos"][arena]
+        targets = np.concatenate([pos[index[agent]], self._host["obstacles"][arena][:, :2]])
+        offset = 0 if team == "pursuer" else cfg.pursuer.num_agents
+        return AttentionOverlay(
+            arena=arena,
+            agent=offset + agent,
+            targets=targets,
+            weights=np.asarray(weights[arena, agent, 1:]),
+            kinds=kinds,
+        )
+
+    def own_attention(self, team: str, arena: int, agent: int) -> float | None:
+        weights = self._host["attention"].get(team)
+        if weights is None:
+            return None
+        return float(weights[arena, agent, 0])
+
+    def counters(self) -> list[dict[str, Any]]:
+        """Per arena: time, active agents per team, evaders captured, collisions per cause."""
+        return arena_counters(
+            self.config,
+            self._host["active"],
+            self._host["cause"],
+            self._host["step"],
+            self._host["done"],
+        )
+
+
+def arena_counters(
+    config: EnvConfig,
+    active: np.ndarray,
+    cause: np.ndarray,
+    step: np.ndarray,
+    done: np.ndarray | None = None,
+) -> list[dict[str, Any]]:
+    """Counters per arena from active [B, N], cause [B, N] and step [B] (frames of any source)."""
+    p = config.pursuer.num_agents
+    rows = []
+    for b in range(active.shape[0]):
+        c = cause[b]
+        row: dict[str, Any] = {
+            "time": float(step[b]) * config.control_dt,
+            "pursuers": int(np.sum(active[b, :p])),
+            "evaders": int(np.sum(active[b, p:])),
+            "captured": int(np.sum(c[p:] == CAPTURE)),
+        }
+        for code, name in CAUSE_NAMES.items():
+            if code != CAPTURE:
+                row[name] = int(np.sum(c == code))
+        row["done"] = bool(done[b] > 0) if done is not None else False
+        rows.append(row)
+    return rows
+
+
+__all__ = [
+    "LiveRun",
+    "PolicyError",
+    "TeamPolicy",
+    "arena_counters",
+    "attention_targets",
+    "check_fits",
+    "fixed_policy",
+    "learned_policy",
+    "load_team_policy",
+]

@@ -1,0 +1,234 @@
+"""Checkpoints: exact resume, policies rebuilt from a path alone, clear errors, atomic saves."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import pe_mjx
+from pe_mjx.ppo import checkpoint
+from pe_mjx.ppo.checkpoint import CheckpointError, load_policy
+from pe_mjx.ppo.config import TrainConfig
+from pe_mjx.ppo.run import resume_config, train
+
+CONFIG = TrainConfig(
+    preset="4-1-2",
+    backend="kinematic",
+    num_envs=8,
+    unroll_length=8,
+    update_epochs=1,
+    num_minibatches=2,
+    eval_every=0,
+    checkpoint_every=2,
+    width=16,
+    hidden=32,
+    env_steps=8 * 8 * 4,
+)
+
+
+def _max_diff(a, b) -> float:
+    diffs = jax.tree.map(lambda x, y: float(jnp.max(jnp.abs(x - y))), a, b)
+    return max(jax.tree.leaves(diffs))
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """One run straight through (4 iterations) and one stopped after 2 and resumed."""
+    root = tmp_path_factory.mktemp("runs")
+    _, straight = train(CONFIG, root / "straight", progress=False)
+    train(CONFIG, root / "split", progress=False, stop_after=2)
+    _, resumed = train(resume_config(root / "split"), root / "split", resume=True, progress=False)
+    return root, straight, resumed
+
+
+def test_resume_matches_an_unstopped_run(runs):
+    _, straight, resumed = runs
+    assert int(resumed.iteration) == int(straight.iteration) == 4
+    for team in ("pursuer", "evader"):
+        assert _max_diff(straight.teams[team].params, resumed.teams[team].params) == 0.0
+        assert _max_diff(straight.teams[team].opt_state, resumed.teams[team].opt_state) == 0.0
+    assert _max_diff(straight.env_state.world.pos, resumed.env_state.world.pos) == 0.0
+
+
+def test_run_directory_has_config_logs_and_checkpoints(runs):
+    root, _, _ = runs
+    run = root / "straight"
+    assert (run / "config.json").is_file()
+    assert any((run / "tb").iterdir())
+    meta = checkpoint.read_meta(run)
+    assert meta["iteration"] == 4 and meta["env_steps"] == 4 * 64
+    assert set(meta["network_configs"]) == {"pursuer", "evader"}
+
+
+def test_load_policy_plays_in_the_env(runs):
+    root, straight, _ = runs
+    env = pe_mjx.make("4-1-2", backend="kinematic")
+    policies = {t: load_policy(root / "straight", team=t) for t in ("pursuer", "evader")}
+    state = jax.jit(env.reset)(jax.random.key(0))
+
+    @jax.jit
+    def play(state, rng):
+        keys = jax.random.split(rng, 2)
+        actions = {t: policies[t](state.obs[t], k) for t, k in zip(policies, keys, strict=True)}
+        return env.step(state, actions), actions
+
+    for i in range(5):
+        new, actions = play(state, jax.random.key(i))
+        for team in ("pursuer", "evader"):
+            a = np.asarray(actions[team])
+            assert a.shape == (env.config.team(team).num_agents,)
+            assert np.asarray(state.obs[team]["action_mask"])[np.arange(len(a)), a].all()
+        state = new
+    # The restored parameters are those of the run.
+    network, restored, _, _ = checkpoint.restore_policy_params(root / "straight", "pursuer")
+    assert _max_diff(restored["params"], straight.teams["pursuer"].params) == 0.0
+    # Same policy object runs unchanged at another scale (MIX is count-independent).
+    big = pe_mjx.make("8-2-4", backend="kinematic")
+    obs = jax.jit(big.reset)(jax.random.key(1)).obs["pursuer"]
+    assert policies["pursuer"](obs, jax.random.key(0)).shape == (8,)
+
+
+def test_missing_and_mismatched_checkpoints_give_clear_errors(runs, tmp_path):
+    root, _, _ = runs
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_policy(tmp_path / "nowhere", team="pursuer")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(CheckpointError, match="no checkpoints"):
+        load_policy(tmp_path / "empty", team="pursuer")
+    with pytest.raises(CheckpointError, match="unknown team"):
+        load_policy(root / "straight", team="referee")
+    other = pe_mjx.get_preset("4-1-2")
+    other = other.replace(
+        pursuer=other.pursuer.__class__(**{**other.pursuer.__dict__, "num_speeds": 4})
+    )
+    with pytest.raises(CheckpointError, match="actions"):
+        load_policy(root / "straight", team="pursuer", env_config=other)
+
+
+def test_truncated_checkpoint_gives_a_clear_error(runs, tmp_path):
+    root, _, _ = runs
+    broken = tmp_path / "broken"
+    shutil.copytree(root / "straight", broken)
+    step_dir = broken / "checkpoints" / "4"
+    # Truncate every data file of the policy item.
+    for f in (step_dir / "policy_pursuer").rglob("*"):
+        if f.is_file() and f.stat().st_size > 0:
+            f.write_bytes(f.read_bytes()[: f.stat().st_size // 3])
+    with pytest.raises(CheckpointError, match="cannot be restored|unreadable"):
+        load_policy(broken, team="pursuer")
+
+
+def test_interrupted_save_leaves_the_previous_checkpoint_loadable(runs, tmp_path):
+    """A save killed midway leaves only orbax's temporary directory, which loading ignores."""
+    root, _, _ = runs
+    run = tmp_path / "interrupted"
+    shutil.copytree(root / "straight", run)
+    partial = run / "checkpoints" / "6.orbax-checkpoint-tmp-1234"
+    (partial / "policy_evader").mkdir(parents=True)
+    (partial / "policy_evader" / "garbage").write_bytes(b"\x00" * 10)
+    assert checkpoint.read_meta(run)["iteration"] == 4
+    load_policy(run, team="evader")
+
+
+def test_kill_during_save_keeps_previous_checkpoint(tmp_path):
+    """Kill a real training process while it saves; the run stays loadable."""
+    script = (
+        "import sys\n"
+        "from pe_mjx.ppo.config import TrainConfig\n"
+        "from pe_mjx.ppo.run import train\n"
+        "from pe_mjx.ppo import checkpoint\n"
+        "orig = checkpoint.save\n"
+        "count = [0]\n"
+        "def save(run_dir, trainer, state):\n"
+        "    count[0] += 1\n"
+        "    if count[0] == 2:\n"
+        "        import os, threading\n"
+        "        threading.Timer(0.05, lambda: os._exit(9)).start()\n"
+        "    return orig(run_dir, trainer, state)\n"
+        "import pe_mjx.ppo.run as run_mod\n"
+        "run_mod.checkpoint.save = save\n"
+        f"cfg = TrainConfig(**{CONFIG.to_dict()!r})\n"
+        "train(cfg, sys.argv[1], progress=False)\n"
+    )
+    out = tmp_path / "killed"
+    result = subprocess.run(
+        [sys.executable, "-c", script, str(out)], capture_output=True, timeout=900
+    )
+    assert result.returncode != 0
+    meta = checkpoint.read_meta(out)
+    assert meta["iteration"] in (2, 4)
+    load_policy(out, team="pursuer")
+
+
+def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
+    out = tmp_path / "cli-run"
+    exe = [sys.executable, "-m", "pe_mjx.cli", "train"]
+    flags = [
+        "--preset",
+        "4-1-2",
+        "--backend",
+        "kinematic",
+        "--evader",
+        "scripted",
+        "--pursuer-encoder",
+        "mean",
+        "--num-envs",
+        "8",
+        "--unroll-length",
+        "8",
+        "--env-steps",
+        "256",
+        "--eval-every",
+        "2",
+        "--eval-envs",
+        "4",
+        "--checkpoint-every",
+        "1",
+        "--width",
+        "16",
+        "--hidden",
+        "32",
+        "--no-progress",
+        "--out",
+        str(out),
+    ]
+    first = subprocess.run(
+        [*exe, *flags, "--stop-after", "2"], capture_output=True, text=True, timeout=900
+    )
+    assert first.returncode == 0, first.stderr[-3000:]
+    assert checkpoint.read_meta(out)["iteration"] == 2
+    again = subprocess.run(
+        [*exe, "--resume", str(out), "--no-progress"], capture_output=True, text=True, timeout=900
+    )
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert checkpoint.read_meta(out)["iteration"] == 4
+    assert "env steps" in again.stdout
+    # Starting a new run over an existing one is refused; nothing is overwritten.
+    clash = subprocess.run([*exe, *flags], capture_output=True, text=True, timeout=900)
+    assert clash.returncode != 0 and "already holds a run" in clash.stderr
+    missing = subprocess.run(
+        [*exe, "--resume", str(tmp_path / "nope")], capture_output=True, text=True, timeout=300
+    )
+    assert missing.returncode != 0 and "does not exist" in missing.stderr
+    assert "Traceback" not in missing.stderr
+    # Team mismatch: this run learned only the pursuer.
+    from pe_mjx.evaluate import resolve_policy
+
+    with pytest.raises(ValueError, match="did not learn a evader policy|did not learn an? evader"):
+        resolve_policy(str(out), "evader", pe_mjx.get_preset("4-1-2"))
+    bad = subprocess.run(
+        [sys.executable, "-m", "pe_mjx.cli", "evaluate", "--pursuers", "scripted", "--evaders",
+         str(out), "--preset", "4-1-2", "--trials", "2", "--out", str(tmp_path / "ev")],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert bad.returncode != 0 and "did not learn" in bad.stderr
+    events = list((out / "tb").iterdir())
+    assert events, "no TensorBoard event files"
+    assert Path(out / "config.json").is_file()

@@ -1,0 +1,152 @@
+"""IPPO co-evolution: it learns, it is deterministic, resumes exactly, and scales over devices."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pe_mjx.ppo.config import TrainConfig
+from pe_mjx.ppo.train import Trainer
+
+TINY = dict(
+    preset="4-1-2",
+    backend="kinematic",
+    num_envs=8,
+    unroll_length=8,
+    update_epochs=1,
+    num_minibatches=2,
+    eval_every=0,
+    checkpoint_every=2,
+    width=16,
+    hidden=32,
+)
+
+
+def tiny(**changes) -> TrainConfig:
+    return TrainConfig(**{**TINY, "env_steps": 8 * 8 * 4, **changes})
+
+
+def params_close(a, b, atol=0.0) -> bool:
+    leaves = jax.tree.leaves(jax.tree.map(lambda x, y: jnp.max(jnp.abs(x - y)), a, b))
+    return max(float(x) for x in leaves) <= atol
+
+
+def test_config_validation_names_the_field():
+    with pytest.raises(ValueError, match="pursuer_encoder"):
+        TrainConfig(pursuer_encoder="transformer")
+    with pytest.raises(ValueError, match="num_envs"):
+        TrainConfig(num_envs=0)
+    with pytest.raises(ValueError, match="both fixed"):
+        TrainConfig(pursuer="scripted", evader="random")
+    with pytest.raises(ValueError, match="unknown preset"):
+        TrainConfig(preset="3-3-3")
+
+
+def test_iteration_updates_both_teams_and_reports_every_term():
+    trainer = Trainer(tiny())
+    state = trainer.init()
+    before = jax.tree.map(np.asarray, state.teams)
+    # Donating, as the training loop does, so that this program is shared with test_checkpoint's.
+    step = jax.jit(trainer.iteration, donate_argnums=0)
+    new, metrics = step(state)
+    for team in ("pursuer", "evader"):
+        assert not params_close(before[team].params, new.teams[team].params)
+        for name in ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction"):
+            assert np.isfinite(float(metrics[f"loss/{team}/{name}"]))
+    for term in ("wall", "obstacle", "teammate", "pursuit", "capture", "opponent"):
+        assert f"reward/pursuer/{term}" in metrics
+    for term in ("wall", "obstacle", "teammate", "opponent", "alive"):
+        assert f"reward/evader/{term}" in metrics
+    assert "episode/success_rate" in metrics
+    assert int(new.env_steps) == 64
+    # Same seed, same result.
+    again, _ = step(trainer.init())
+    assert params_close(again.teams["pursuer"].params, new.teams["pursuer"].params)
+
+
+def test_fixed_opponent_is_not_trained():
+    trainer = Trainer(tiny(evader="scripted", pursuer_encoder="mean"))
+    assert trainer.learned == ("pursuer",)
+    state = trainer.init()
+    new, metrics = jax.jit(trainer.iteration)(state)
+    assert "evader" not in new.teams
+    assert "loss/pursuer/entropy" in metrics and "loss/evader/entropy" not in metrics
+
+
+def test_pursuers_learn_to_capture_the_scripted_evader():
+    """Pursuers trained briefly capture clearly more often than the untrained policy.
+
+    4-1-2 arena, kinematic backend, against the scripted (fleeing) evader, 64 evaluation
+    episodes each with fixed seeds. Measured when written: untrained ~0.3-0.45, trained ~0.8.
+    The margin of 0.2 over 64 Bernoulli episodes is > 3 standard errors.
+    """
+    config = TrainConfig(
+        preset="4-1-2",
+        backend="kinematic",
+        evader="scripted",
+        num_envs=32,
+        unroll_length=32,
+        env_steps=32 * 32 * 120,
+        learning_rate=1e-3,
+        eval_envs=64,
+        eval_every=0,
+    )
+    trainer = Trainer(config)
+    state = trainer.init()
+    evaluate = jax.jit(trainer.evaluate)
+    key = jax.random.key(123)
+    before = float(evaluate(state, key)["eval/pursuer_vs_scripted/success_rate"])
+    step = jax.jit(trainer.iteration, donate_argnums=0)
+    for _ in range(config.num_iterations):
+        state, _ = step(state)
+    after = float(evaluate(state, key)["eval/pursuer_vs_scripted/success_rate"])
+    print(f"success vs scripted evader: untrained {before:.3f}, trained {after:.3f}")
+    assert after >= before + 0.2
+
+
+def test_two_devices_match_one_device(tmp_path):
+    """Data-parallel over 2 (forced) CPU devices gives the 1-device parameters."""
+    script = textwrap.dedent(
+        """
+        import json, sys
+        import jax, jax.numpy as jnp, numpy as np
+        from pe_mjx.ppo.config import TrainConfig
+        from pe_mjx.ppo.train import Trainer
+        assert len(jax.devices()) == 2, jax.devices()
+        cfg = TrainConfig(**json.loads(sys.argv[1]))
+        out = {}
+        for n in (1, 2):
+            mesh = jax.sharding.Mesh(np.array(jax.devices()[:n]), ("data",))
+            trainer = Trainer(cfg, mesh=mesh)
+            state = trainer.init()
+            step = jax.jit(trainer.iteration)
+            for _ in range(2):
+                state, _ = step(state)
+            shards = state.env_state.world.pos.sharding.device_set
+            out[n] = (jax.tree.map(np.asarray, state.teams["pursuer"].params), len(shards))
+        diffs = jax.tree.leaves(jax.tree.map(lambda a, b: float(np.max(np.abs(a - b))),
+                                             out[1][0], out[2][0]))
+        print(json.dumps({"max_diff": max(diffs), "devices": [out[1][1], out[2][1]]}))
+        """
+    )
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    cfg = {**TINY, "env_steps": 8 * 8 * 2}
+    result = subprocess.run(
+        [sys.executable, "-c", script, json.dumps(cfg)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=900,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["devices"] == [1, 2]
+    assert report["max_diff"] < 1e-4, report

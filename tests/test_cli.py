@@ -1,0 +1,78 @@
+"""`pe-mjx` command line, run as a subprocess through the installed console script (SPEC 6)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+CLI = Path(sys.executable).parent / "pe-mjx"
+
+
+def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    cmd = [str(CLI)] if CLI.exists() else [sys.executable, "-m", "pe_mjx.cli"]
+    return subprocess.run(
+        [*cmd, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False
+    )
+
+
+def test_scene_writes_loadable_arena(tmp_path, get_compiled):
+    (tmp_path / "tmp").mkdir()
+    result = run_cli(
+        "scene", "--preset", "4-1-2", "--seed", "3", "-o", "tmp/arena.xml", cwd=tmp_path
+    )
+    assert result.returncode == 0, result.stderr
+    out = tmp_path / "tmp" / "arena.xml"
+    assert "wrote" in result.stdout
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.nq == 3 * 5 and model.nkey == 1
+    c = get_compiled("4-1-2", "kinematic")  # shared with the contract and export tests
+    state = c.batch_reset(jnp.stack([jax.random.key(3), jax.random.key(4)]))
+    expected = np.concatenate(
+        [np.asarray(state.world.pos[0]), np.asarray(state.world.yaw[0])[:, None]], axis=1
+    ).reshape(-1)
+    np.testing.assert_array_equal(model.qpos0, expected.astype(np.float64))
+    assert sorted(p.name for p in out.parent.iterdir()) == ["arena.xml"]  # no temp file left
+
+    # existing output without --force: refused, file untouched; with --force: rewritten
+    out.write_text("precious")
+    refused = run_cli("scene", "--preset", "2-1-1", "-o", str(out), cwd=tmp_path)
+    assert refused.returncode != 0
+    assert "exists" in refused.stderr and "--force" in refused.stderr
+    assert out.read_text() == "precious"
+    forced = run_cli("scene", "--preset", "2-1-1", "-o", str(out), "--force", cwd=tmp_path)
+    assert forced.returncode == 0, forced.stderr
+    assert mujoco.MjModel.from_xml_path(str(out)).nq == 3 * 3
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("scene", "--preset", "nope"), "unknown preset 'nope'"),
+        (("scene", "--no-such-flag"), "--no-such-flag"),
+        (("scene", "--seed", "abc"), "abc"),
+        (("scene", "-o", "missing_dir/arena.xml"), "does not exist"),
+        (("frobnicate",), "frobnicate"),
+    ],
+)
+def test_bad_arguments_exit_nonzero(tmp_path, args, needle):
+    result = run_cli(*args, cwd=tmp_path)
+    assert result.returncode != 0
+    assert needle in result.stderr + result.stdout
+    assert "Traceback" not in result.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_output_is_a_directory(tmp_path):
+    (tmp_path / "d").mkdir()
+    result = run_cli("scene", "--preset", "2-1-1", "-o", "d", "--force", cwd=tmp_path)
+    assert result.returncode != 0
+    assert "directory" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert (tmp_path / "d").is_dir()

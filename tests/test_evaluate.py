@@ -1,0 +1,154 @@
+"""Evaluation: metrics on hand-built episodes, the paper's numbers, determinism, the CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import pe_mjx
+from pe_mjx import evaluate as ev
+from pe_mjx import trajectory
+from pe_mjx.env import CAPTURE, OBSTACLE, TEAMMATE, WALL
+
+
+def test_paper_row_per_evader_cost():
+    """Table II, E_BiRNN vs P_MLP: pursuit cost 7.05 at success 0.565 with 4 evaders -> 3.119."""
+    trials = 100
+    # m' and n' per trial whose means are 7.05 and 0.565 * 4 = 2.26.
+    m = np.array([7.0] * 95 + [8.0] * 5)
+    n = np.array([2.0] * 74 + [3.0] * 26)
+    assert m.mean() == pytest.approx(7.05) and n.mean() == pytest.approx(2.26)
+    ratio, low, high = ev.ratio_ci(m, n)
+    assert ratio == pytest.approx(7.05 / 2.26)
+    assert round(ratio, 3) == 3.119
+    assert low <= ratio <= high
+    summary = ev.summarize(
+        {
+            "success_rate": n / 4,
+            "travel_distance": np.full(trials, 19.805),
+            "pursuit_cost": m,
+            "evaders_incapacitated": n,
+            "length": np.full(trials, 1000.0),
+        }
+    )
+    assert summary["success_rate"] == pytest.approx(0.565)
+    assert summary["pursuit_cost"] == pytest.approx(7.05)
+    assert round(summary["per_evader_cost"], 3) == 3.119
+    assert summary["travel_distance_ci95"] == pytest.approx(0.0)
+
+
+def test_mean_ci_matches_student_t():
+    x = np.array([1.0, 2.0, 3.0, 4.0])
+    mean, half = ev.mean_ci(x)
+    assert mean == 2.5
+    # t_{0.975, 3} = 3.182446; sd = 1.290994; n = 4.
+    assert half == pytest.approx(3.182446 * 1.290994 / 2, rel=1e-5)
+
+
+def test_ratio_ci_with_no_captures_is_infinite_not_nan():
+    ratio, low, high = ev.ratio_ci(np.array([1.0, 2.0, 0.0]), np.zeros(3))
+    assert ratio == np.inf and high == np.inf and not np.isnan(low)
+
+
+def test_trial_metrics_on_a_hand_built_episode():
+    env = pe_mjx.make("4-1-2", backend="kinematic")
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), 2))
+    w = state.world
+    # Trial 0: evader captured, pursuer 0 captured it, pursuer 1 hit the wall; distances known.
+    # Trial 1: nothing incapacitated except pursuer 3 on an obstacle and pursuer 2 by a teammate.
+    active = np.ones((2, 5), bool)
+    cause = np.zeros((2, 5), np.int32)
+    active[0, [0, 1, 4]] = False
+    cause[0, [0, 4]] = CAPTURE
+    cause[0, 1] = WALL
+    active[1, [2, 3]] = False
+    cause[1, 2], cause[1, 3] = TEAMMATE, OBSTACLE
+    distance = np.array([[1.0, 2.0, 3.0, 4.0, 9.0], [0.5, 0.5, 0.5, 0.5, 7.0]])
+    world = w.replace(
+        active=jnp.asarray(active),
+        cause=jnp.asarray(cause),
+        distance=jnp.asarray(distance),
+        step=jnp.asarray([120, 1000], jnp.int32),
+    )
+    out = ev.trial_metrics(env, state.replace(world=world))
+    np.testing.assert_allclose(out["success_rate"], [1.0, 0.0])
+    np.testing.assert_allclose(out["travel_distance"], [2.5, 0.5])
+    np.testing.assert_allclose(out["pursuit_cost"], [2.0, 2.0])
+    np.testing.assert_allclose(out["length"], [120, 1000])
+    np.testing.assert_allclose(out["pursuers_capture"], [1, 0])
+    np.testing.assert_allclose(out["pursuers_wall"], [1, 0])
+    np.testing.assert_allclose(out["pursuers_teammate"], [0, 1])
+    np.testing.assert_allclose(out["pursuers_obstacle"], [0, 1])
+    np.testing.assert_allclose(out["evaders_capture"], [1, 0])
+    summary = ev.summarize(out)
+    assert summary["per_evader_cost"] == pytest.approx(2.0 / 0.5)
+
+
+def test_small_matrix_is_deterministic_and_writes_every_report(tmp_path):
+    kwargs = dict(
+        pursuers=["scripted", "random"],
+        evaders=["scripted"],
+        preset="4-1-2",
+        trials=6,
+        seed=3,
+        backend="kinematic",
+        log=lambda *_: None,
+    )
+    first = ev.evaluate(out=tmp_path / "a", record=2, **kwargs)
+    second = ev.evaluate(out=tmp_path / "b", record=0, **kwargs)
+    for r1, r2 in zip(first["results"], second["results"], strict=True):
+        for key in r1.trials:
+            np.testing.assert_array_equal(r1.trials[key], r2.trials[key])
+    paths = first["paths"]
+    table = paths["markdown"].read_text()
+    assert "| E_scripted | P_scripted |" in table and "Per-Evader Cost" in table
+    data = json.loads(paths["json"].read_text())
+    assert len(data["pairings"]) == 2 and len(data["pairings"][0]["trials"]["success_rate"]) == 6
+    assert data["meta"]["seed"] == 3
+    assert len(paths["trials"].read_text().strip().splitlines()) == 1 + 2 * 6
+    for key in ("success_rate_heatmap", "per_evader_cost_heatmap"):
+        assert paths[key].stat().st_size > 1000
+    # Trajectories: the recorded trials replay exactly the evaluated ones.
+    rec = trajectory.load(tmp_path / "a" / "trajectories" / "pairing-0.npz")
+    assert rec.num_arenas == 2
+    final_active = rec.active[-1]
+    n_p = 4
+    success = (~final_active[:, n_p:]).mean(axis=1)
+    np.testing.assert_allclose(success, first["results"][0].trials["success_rate"][:2])
+
+
+def _cli(*args, timeout=900):
+    return subprocess.run(
+        [sys.executable, "-m", "pe_mjx.cli", "evaluate", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_cli_end_to_end_and_bad_inputs(tmp_path):
+    out = tmp_path / "cli"
+    ok = _cli(
+        "--pursuers", "scripted", "--evaders", "random", "--preset", "2-1-1", "--trials", "4",
+        "--backend", "kinematic", "--record", "1", "--out", str(out),
+    )
+    assert ok.returncode == 0, ok.stderr[-2000:]
+    assert "| E_random | P_scripted |" in ok.stdout
+    assert (out / "results.md").is_file() and (out / "trajectories" / "pairing-0.npz").is_file()
+    again = _cli("--pursuers", "scripted", "--preset", "2-1-1", "--out", str(out))
+    assert again.returncode != 0 and "already holds results" in again.stderr
+    for args, message in (
+        (("--preset", "9-9-9"), "unknown preset"),
+        (("--pursuers", str(tmp_path / "missing-run")), "does not exist"),
+        (("--trials", "0"), "trials"),
+    ):
+        bad = _cli(*args, "--out", str(tmp_path / "bad"), timeout=300)
+        assert bad.returncode != 0, args
+        assert message in bad.stderr, (args, bad.stderr[-1000:])
+        assert "Traceback" not in bad.stderr
