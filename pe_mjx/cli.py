@@ -28,7 +28,7 @@ def _check_preset(name: str) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class SceneArgs:
-    """Write the standalone MJCF of one preset's arena, exactly as `env.reset(key(seed))` draws it."""
+    """Write the standalone MJCF of a preset's arena exactly as `env.reset(key(seed))` draws it."""
 
     preset: str = "20-5-8"
     """Scenario preset (P-E-K)."""

@@ -1,4 +1,4 @@
-"""Frozen, keyword-only configs for the game (arena, teams, rewards, env) and the preset registry."""
+"""Frozen keyword-only configs for the game (arena, teams, rewards, env) and the preset registry."""
 
 from __future__ import annotations
 

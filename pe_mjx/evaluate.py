@@ -46,6 +46,8 @@ class PolicySpec:
     label: str
     policy: Policy
     note: str = ""
+    method: str = ""
+    """The encoder of a learned policy ("mix", ...); the spec itself for built-in ones."""
 
 
 def _team_letter(team: str) -> str:
@@ -58,7 +60,8 @@ def resolve_policy(spec: str, team: str, env_config: EnvConfig) -> PolicySpec:
     Raises ValueError (a CheckpointError for runs) with a clear message when it does not fit.
     """
     if spec in BUILTIN:
-        return PolicySpec(team, spec, f"{_team_letter(team)}_{spec}", make_policy(spec, env_config, team))
+        policy = make_policy(spec, env_config, team)
+        return PolicySpec(team, spec, f"{_team_letter(team)}_{spec}", policy, method=spec)
     from pe_mjx.ppo.checkpoint import load_policy, read_meta
 
     meta = read_meta(spec)
@@ -76,7 +79,7 @@ def resolve_policy(spec: str, team: str, env_config: EnvConfig) -> PolicySpec:
         note = "mlp-padded"
         label += "*"
     policy = load_policy(spec, team=team, env_config=env_config)
-    return PolicySpec(team, str(spec), label, policy, note)
+    return PolicySpec(team, str(spec), label, policy, note, method=net["encoder"])
 
 
 def trial_metrics(env: PursuitEvasionEnv, final) -> dict[str, np.ndarray]:
@@ -160,10 +163,13 @@ def cross_confrontation(
     record: int = 0,
     out: Path | None = None,
     log: Any = print,
+    skip_same_method: bool = False,
 ) -> list[PairingResult]:
     """Runs every pursuer spec against every evader spec; optionally records `record` trials.
 
-    Trajectories are written to `out/trajectories/pairing-<i>.npz` when `record` > 0.
+    Trajectories are written to `out/trajectories/pairing-<i>.npz` when `record` > 0. With
+    `skip_same_method`, pairings of two policies with the same encoder are left out, as in the
+    paper's tables (a co-evolution's own opponent is never its test opponent).
     """
     env = PursuitEvasionEnv(env_config, backend=backend)
     p_specs = [resolve_policy(s, "pursuer", env_config) for s in pursuers]
@@ -173,6 +179,8 @@ def cross_confrontation(
     index = 0
     for e_spec in e_specs:
         for p_spec in p_specs:
+            if skip_same_method and p_spec.method and p_spec.method == e_spec.method:
+                continue
             pols = {"pursuer": p_spec.policy, "evader": e_spec.policy}
             tic = time.perf_counter()
             final = jax.jit(lambda k, pols=pols: play_episodes(env, pols, k))(keys)
@@ -241,8 +249,11 @@ def markdown_table(results: list[PairingResult], title: str) -> str:
         )
     notes = sorted({r.pursuer.note for r in results} | {r.evader.note for r in results} - {""})
     if "mlp-padded" in notes:
-        lines += ["", "\\* MLP policy run at entity counts other than its training counts: its "
-                  "input is zero-padded or truncated (SPEC 3.1); it cannot generalise."]
+        lines += [
+            "",
+            "\\* MLP policy run at entity counts other than its training counts: its "
+            "input is zero-padded or truncated (SPEC 3.1); it cannot generalise.",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -283,10 +294,16 @@ def write_reports(
         "pairings": [
             {
                 "pairing": r.index,
-                "pursuer": {"label": r.pursuer.label, "source": r.pursuer.source,
-                            "note": r.pursuer.note},
-                "evader": {"label": r.evader.label, "source": r.evader.source,
-                           "note": r.evader.note},
+                "pursuer": {
+                    "label": r.pursuer.label,
+                    "source": r.pursuer.source,
+                    "note": r.pursuer.note,
+                },
+                "evader": {
+                    "label": r.evader.label,
+                    "source": r.evader.source,
+                    "note": r.evader.note,
+                },
                 "summary": r.summary,
                 "seconds": r.seconds,
                 "trials": {k: v.tolist() for k, v in r.trials.items()},
@@ -324,8 +341,15 @@ def plot_heatmaps(results: list[PairingResult], out: Path) -> dict[str, Path]:
         ax.set_xlabel("pursuer policy")
         ax.set_ylabel("evader policy")
         for (i, j), v in np.ndenumerate(grid):
-            ax.text(j, i, "inf" if np.isinf(v) else f"{v:.2f}", ha="center", va="center",
-                    color="white" if key == "success_rate" else "black", fontsize=9)
+            ax.text(
+                j,
+                i,
+                "inf" if np.isinf(v) else f"{v:.2f}",
+                ha="center",
+                va="center",
+                color="white" if key == "success_rate" else "black",
+                fontsize=9,
+            )
         fig.colorbar(im, ax=ax, label=name)
         ax.set_title(name)
         fig.tight_layout()
@@ -346,13 +370,14 @@ def evaluate(
     backend: str = "mjx",
     record: int = 3,
     log: Any = print,
+    skip_same_method: bool = False,
 ) -> dict[str, Any]:
     """Runs a matrix and writes every report to `out`; returns the paths and the results."""
     env_config = get_preset(preset) if isinstance(preset, str) else preset
     out = Path(out)
     tic = time.perf_counter()
     results = cross_confrontation(
-        pursuers, evaders, env_config, trials, seed, backend, record, out, log
+        pursuers, evaders, env_config, trials, seed, backend, record, out, log, skip_same_method
     )
     meta = {
         "preset": env_config.name,

@@ -6,6 +6,7 @@ import functools
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 
 from pe_mjx.config import TEAMS, get_preset
 from pe_mjx.env import CAPTURE, CAUSE_NAMES, PursuitEvasionEnv, State
@@ -16,13 +17,14 @@ def rollout(
     env: PursuitEvasionEnv,
     policies: dict[str, Policy],
     rng: jax.Array,
-    steps: int,
+    steps: int | jax.Array,
     state: State | None = None,
 ) -> State:
     """Plays one arena until it is done or `steps` control steps were taken; returns the last state.
 
-    Pure and jittable (``env``, ``policies`` and ``steps`` are static: close over them or use
-    ``functools.partial``); ``jax.vmap`` it over ``rng`` (and ``state``) for many arenas. Under
+    Pure and jittable (``env`` and ``policies`` are static: close over them or use
+    ``functools.partial``; ``steps`` may be a Python int or a traced int32 scalar, so one compile
+    serves every budget); ``jax.vmap`` it over ``rng`` (and ``state``) for many arenas. Under
     ``vmap`` finished arenas are frozen while the others play on.
 
     Args:
@@ -39,7 +41,7 @@ def rollout(
     missing = set(TEAMS) - set(policies)
     if missing:
         raise ValueError(f"rollout: policies missing for teams {sorted(missing)}")
-    if steps < 0:
+    if isinstance(steps, int) and steps < 0:
         raise ValueError(f"rollout: steps must be >= 0, got {steps}")
     rng, reset_rng = jax.random.split(rng)
     if state is None:
@@ -92,12 +94,12 @@ def match_summary(env: PursuitEvasionEnv, state: State) -> dict[str, Any]:
 
 
 @functools.cache
-def _scripted_match(preset: str, backend: str, steps: int) -> tuple[PursuitEvasionEnv, Any]:
-    """(env, jitted key -> final state) of a scripted match; cached so replays skip the compile."""
+def _scripted_match(preset: str, backend: str) -> tuple[PursuitEvasionEnv, Any]:
+    """(env, jitted (key, steps) -> final state) of scripted matches; cached: one compile each."""
     config = get_preset(preset)
     env = PursuitEvasionEnv(config, backend=backend)
     policies = {team: make_policy("scripted", config, team) for team in TEAMS}
-    return env, jax.jit(lambda key: rollout(env, policies, key, steps))
+    return env, jax.jit(lambda key, steps: rollout(env, policies, key, steps))
 
 
 def play_scripted_match(preset: str, seed: int, backend: str, steps: int) -> dict[str, Any]:
@@ -114,8 +116,8 @@ def play_scripted_match(preset: str, seed: int, backend: str, steps: int) -> dic
     """
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
-    env, play = _scripted_match(preset, backend, steps)
-    return match_summary(env, play(jax.random.key(seed)))
+    env, play = _scripted_match(preset, backend)
+    return match_summary(env, play(jax.random.key(seed), jnp.int32(steps)))
 
 
 __all__ = ["match_summary", "play_scripted_match", "rollout"]

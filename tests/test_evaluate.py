@@ -135,8 +135,20 @@ def _cli(*args, timeout=900):
 def test_cli_end_to_end_and_bad_inputs(tmp_path):
     out = tmp_path / "cli"
     ok = _cli(
-        "--pursuers", "scripted", "--evaders", "random", "--preset", "2-1-1", "--trials", "4",
-        "--backend", "kinematic", "--record", "1", "--out", str(out),
+        "--pursuers",
+        "scripted",
+        "--evaders",
+        "random",
+        "--preset",
+        "2-1-1",
+        "--trials",
+        "4",
+        "--backend",
+        "kinematic",
+        "--record",
+        "1",
+        "--out",
+        str(out),
     )
     assert ok.returncode == 0, ok.stderr[-2000:]
     assert "| E_random | P_scripted |" in ok.stdout

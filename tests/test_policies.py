@@ -30,8 +30,8 @@ def batched_policy(name: str, config: EnvConfig, team: str):
     return jax.jit(jax.vmap(make_policy(name, config, team)))
 
 
-@functools.partial(jax.jit, static_argnums=2)
-def perturbed_obs(obs: dict, rng: jax.Array, valid_fraction: float) -> dict:
+@jax.jit
+def perturbed_obs(obs: dict, rng: jax.Array, valid_fraction: float | jax.Array) -> dict:
     """Batched team obs with random action masks (>= 1 valid per agent) and random g flags.
 
     Covers states a short rollout rarely reaches: downed teammates and opponents, every opponent

@@ -196,7 +196,8 @@ def restore_policy_params(
             )[f"policy_{team}"]
     except Exception as err:
         raise CheckpointError(
-            f"the {team} policy in {run_dir} (step {meta['step']}) cannot be restored: {_short(err)}"
+            f"the {team} policy in {run_dir} (step {meta['step']}) cannot be restored: "
+            f"{_short(err)}"
         ) from None
     return network, restored, net_config, meta
 

@@ -87,9 +87,9 @@ class TrainConfig:
             if getattr(self, name) < 1:
                 raise ValueError(f"invalid config: {name} must be >= 1, got {getattr(self, name)}")
         if self.lr_schedule not in ("linear", "constant"):
-            raise ValueError(f"invalid config: lr_schedule must be linear or constant")
+            raise ValueError("invalid config: lr_schedule must be linear or constant")
         if self.backend not in ("mjx", "kinematic"):
-            raise ValueError(f"invalid config: backend must be mjx or kinematic")
+            raise ValueError("invalid config: backend must be mjx or kinematic")
 
     @property
     def steps_per_iteration(self) -> int:

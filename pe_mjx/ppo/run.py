@@ -1,4 +1,4 @@
-"""The training loop around the jitted iteration: progress bar, TensorBoard, evaluation, checkpoints."""
+"""The loop around the jitted training iteration: progress, TensorBoard, evaluation, checkpoints."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from pe_mjx.ppo import checkpoint
-from pe_mjx.ppo.train import Trainer, TrainConfig, TrainState
+from pe_mjx.ppo.train import TrainConfig, Trainer, TrainState
 
 
 def _write_config(run_dir: Path, trainer: Trainer) -> None:

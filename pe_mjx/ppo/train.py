@@ -21,7 +21,6 @@ are replicated and XLA inserts the gradient all-reduce, so the same code runs on
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable
 from typing import Any
@@ -36,10 +35,10 @@ from brax.training.agents.ppo.losses import compute_gae
 from flax import struct
 
 from pe_mjx.config import TEAMS
-from pe_mjx.ppo.config import TrainConfig
 from pe_mjx.env import AutoResetWrapper, PursuitEvasionEnv, State
-from pe_mjx.networks import NetworkConfig, greedy_actions, log_prob, make_network, sample_actions
+from pe_mjx.networks import greedy_actions, log_prob, make_network, sample_actions
 from pe_mjx.policies import make_policy
+from pe_mjx.ppo.config import TrainConfig
 from pe_mjx.ppo.losses import TeamBatch, ppo_loss
 
 ENTITY_KEYS = ("own", "teammates", "opponents", "obstacles")

@@ -87,7 +87,7 @@ def test_load_policy_plays_in_the_env(runs):
             assert np.asarray(state.obs[team]["action_mask"])[np.arange(len(a)), a].all()
         state = new
     # The restored parameters are those of the run.
-    network, restored, _, _ = checkpoint.restore_policy_params(root / "straight", "pursuer")
+    _, restored, _, _ = checkpoint.restore_policy_params(root / "straight", "pursuer")
     assert _max_diff(restored["params"], straight.teams["pursuer"].params) == 0.0
     # Same policy object runs unchanged at another scale (MIX is count-independent).
     big = pe_mjx.make("8-2-4", backend="kinematic")
@@ -121,7 +121,7 @@ def test_truncated_checkpoint_gives_a_clear_error(runs, tmp_path):
     for f in (step_dir / "policy_pursuer").rglob("*"):
         if f.is_file() and f.stat().st_size > 0:
             f.write_bytes(f.read_bytes()[: f.stat().st_size // 3])
-    with pytest.raises(CheckpointError, match="cannot be restored|unreadable"):
+    with pytest.raises(CheckpointError, match=r"cannot be restored|unreadable"):
         load_policy(broken, team="pursuer")
 
 
@@ -221,12 +221,28 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
     # Team mismatch: this run learned only the pursuer.
     from pe_mjx.evaluate import resolve_policy
 
-    with pytest.raises(ValueError, match="did not learn a evader policy|did not learn an? evader"):
+    with pytest.raises(ValueError, match=r"did not learn an? evader"):
         resolve_policy(str(out), "evader", pe_mjx.get_preset("4-1-2"))
     bad = subprocess.run(
-        [sys.executable, "-m", "pe_mjx.cli", "evaluate", "--pursuers", "scripted", "--evaders",
-         str(out), "--preset", "4-1-2", "--trials", "2", "--out", str(tmp_path / "ev")],
-        capture_output=True, text=True, timeout=300,
+        [
+            sys.executable,
+            "-m",
+            "pe_mjx.cli",
+            "evaluate",
+            "--pursuers",
+            "scripted",
+            "--evaders",
+            str(out),
+            "--preset",
+            "4-1-2",
+            "--trials",
+            "2",
+            "--out",
+            str(tmp_path / "ev"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert bad.returncode != 0 and "did not learn" in bad.stderr
     events = list((out / "tb").iterdir())
