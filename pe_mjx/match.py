@@ -69,9 +69,10 @@ def match_summary(env: PursuitEvasionEnv, state: State) -> dict[str, Any]:
 
     Keys: ``steps``, ``evaders_captured``, ``evaders_total``, ``pursuers_total``,
     ``pursuers_<cause>`` and ``evaders_<cause>`` (incapacitated by wall, obstacle, capture,
-    teammate, opponent), ``pursuers_active``, ``evaders_active``, ``success_rate`` (n'/n),
-    ``pursuit_cost`` (m'), ``mean_pursuer_distance`` (metres), ``terminated`` (a team is out) and
-    ``truncated`` (cut by the time limit or the step budget instead).
+    teammate, opponent), ``pursuers_active``, ``evaders_active``, ``success_rate`` (SPEC 4: n'/n,
+    n' the evaders incapacitated by any cause), ``pursuit_cost`` (m'), ``mean_pursuer_distance``
+    (metres), ``terminated`` (a team is out) and ``truncated`` (cut by the time limit or the step
+    budget instead).
     """
     w = jax.device_get(state.world)
     out: dict[str, Any] = {"steps": int(w.step)}
@@ -84,7 +85,8 @@ def match_summary(env: PursuitEvasionEnv, state: State) -> dict[str, Any]:
         for code, name in CAUSE_NAMES.items():
             out[f"{who}_{name}"] = int((codes == code).sum())
         out[f"{who}_active"] = int((codes == 0).sum())
-    out["success_rate"] = out["evaders_captured"] / env.num_evaders
+    # SPEC 4: success counts every incapacitated evader (n'), captured or crashed.
+    out["success_rate"] = (env.num_evaders - out["evaders_active"]) / env.num_evaders
     out["pursuit_cost"] = env.num_pursuers - out["pursuers_active"]
     out["mean_pursuer_distance"] = round(float(w.distance[:p].mean()), 4)
     terminated = bool(jax.device_get(state.info["terminated"]))
@@ -117,7 +119,9 @@ def play_scripted_match(preset: str, seed: int, backend: str, steps: int) -> dic
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
     env, play = _scripted_match(preset, backend)
-    return match_summary(env, play(jax.random.key(seed), jnp.int32(steps)))
+    # The env ends every episode at max_steps anyway; the clamp keeps the budget in int32.
+    budget = jnp.int32(min(steps, env.config.max_steps))
+    return match_summary(env, play(jax.random.key(seed), budget))
 
 
 __all__ = ["match_summary", "play_scripted_match", "rollout"]

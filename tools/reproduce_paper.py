@@ -198,9 +198,11 @@ def _report(args: Args, done: dict[str, dict]) -> str:
     for table, data in done.items():
         scene, p_scale, e_scale = TABLES[table]
         lines += [
-            f"## Table {table}: scene {scene} (pursuers trained at {p_scale}, evaders at {e_scale})",
+            f"## Table {table}: scene {scene} "
+            f"(pursuers trained at {p_scale}, evaders at {e_scale})",
             "",
-            "| Evader | Pursuer | Success rate | Travel distance | Pursuit cost | Per-evader cost |",
+            "| Evader | Pursuer | Success rate | Travel distance | Pursuit cost "
+            "| Per-evader cost |",
             "|---|---|---|---|---|---|",
         ]
         for pairing in data["pairings"]:

@@ -31,7 +31,7 @@ MARKER_Z = 2 * mjcf.ROBOT_HALF_HEIGHT + 0.12
 ATTENTION_Z = 2 * mjcf.ROBOT_HALF_HEIGHT + 0.03
 ATTENTION_MIN_WEIGHT = 0.005
 """Attention weights below this are not drawn."""
-ATTENTION_WIDTH = (0.01, 0.25)
+ATTENTION_WIDTH = (0.015, 0.4)
 """Bar width in metres: base + slope * weight (weights of all tokens sum to 1)."""
 CAMERA_FOV = math.radians(75.0)
 """viser's default vertical field of view."""

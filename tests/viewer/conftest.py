@@ -31,7 +31,6 @@ def browser():
 @pytest.fixture(scope="session")
 def live_viewer(tmp_path_factory):
     """Scripted pursuers against a random evader, two arenas, kinematic backend, 15 steps/s."""
-    require_chromium()
     from pe_mjx.viewer import start_viewer
 
     viewer = start_viewer(
@@ -65,7 +64,6 @@ class TinyRun:
 def tiny_run(tmp_path_factory):
     """Three PPO iterations (MIX pursuer learned, scripted evader) on 2-1-1 with the training view
     attached, as `pe-mjx train --view` wires it. The viewer stays up for the session."""
-    require_chromium()
     from pe_mjx.ppo.config import TrainConfig
     from pe_mjx.ppo.run import train
     from pe_mjx.viewer import start_viewer

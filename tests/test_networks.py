@@ -1,0 +1,377 @@
+"""Tests of pe_mjx.networks: shapes, masking, distributions, invariances, transfer across scales."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import pe_mjx
+from pe_mjx import networks as nets
+from pe_mjx.networks import NetworkConfig
+
+ENTITY_FEATURES = {"teammates": 6, "opponents": 6, "obstacles": 4}
+KEYS = tuple(nets.MASK_KEYS.items())
+
+
+def fake_obs(
+    seed: int, lead: tuple[int, ...], counts: tuple[int, int, int], num_actions: int = 39
+) -> dict[str, jnp.ndarray]:
+    """A random, well-formed team observation with leading dims `lead` (..., A)."""
+    rng = np.random.default_rng(seed)
+
+    def bearing(shape):
+        a = rng.uniform(-np.pi, np.pi, shape)
+        return np.cos(a), np.sin(a)
+
+    own_c, own_s = bearing(lead)
+    obs = {
+        "own": np.stack(
+            [
+                rng.integers(0, 2, lead),
+                rng.uniform(0, 1, lead),
+                own_c,
+                own_s,
+                rng.uniform(0, 1, lead),
+            ],
+            axis=-1,
+        )
+    }
+    for kind, n in zip(nets.ENTITY_TYPES, counts, strict=True):
+        shape = (*lead, n)
+        c, s = bearing(shape)
+        d = rng.uniform(0.05, 2.0, shape)
+        if kind == "obstacles":
+            x = np.stack([d, c, s, rng.uniform(0.05, 0.1, shape)], axis=-1)
+        else:
+            v = rng.normal(0, 0.5, (*shape, 2))
+            x = np.stack([rng.integers(0, 2, shape), d, c, s, v[..., 0], v[..., 1]], axis=-1)
+        obs[kind] = x
+        obs[nets.MASK_KEYS[kind]] = np.ones(shape, bool)
+    mask = rng.uniform(size=(*lead, num_actions)) < 0.7
+    mask[..., 0] = True
+    obs["action_mask"] = mask
+    return {k: jnp.asarray(v, jnp.float32 if v.dtype != bool else bool) for k, v in obs.items()}
+
+
+def config(encoder: str, counts=(19, 5, 8), **kw) -> NetworkConfig:
+    return NetworkConfig(encoder=encoder, mlp_counts=counts if encoder == "mlp" else None, **kw)
+
+
+@pytest.fixture(scope="module")
+def env_obs():
+    env = pe_mjx.make("20-5-8", backend="kinematic")
+    return jax.jit(env.reset)(jax.random.key(0)).obs
+
+
+@pytest.fixture(scope="module")
+def obs20():
+    """[A=20] pursuer-shaped obs at 20-5-8 (T=19, O=5, K=8), 39 actions."""
+    return fake_obs(0, (20,), (19, 5, 8))
+
+
+def _close(a, b, tol=1e-5):
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), atol=tol, rtol=tol)
+
+
+def _permute(obs, seed):
+    rng = np.random.default_rng(seed)
+    out = dict(obs)
+    for kind, mkey in KEYS:
+        perm = rng.permutation(obs[kind].shape[-2])
+        out[kind], out[mkey] = obs[kind][..., perm, :], obs[mkey][..., perm]
+    return out
+
+
+# ----------------------------------------------------------------- config
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"encoder": "transformer"}, "encoder"),
+        ({"width": 0}, "width"),
+        ({"width": 32, "num_heads": 3}, "num_heads"),
+        ({"num_heads": 0}, "num_heads"),
+        ({"hidden": 0}, "hidden"),
+        ({"nearest_k": 0}, "nearest_k"),
+        ({"encoder": "mlp"}, "mlp_counts"),
+        ({"encoder": "mlp", "mlp_counts": (1, 2)}, "mlp_counts"),
+        ({"mlp_counts": (1, -2, 3)}, "mlp_counts"),
+        ({"mix_queries": "some"}, "mix_queries"),
+    ],
+)
+def test_config_validation_names_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        NetworkConfig(**kwargs)
+
+
+def test_config_round_trip():
+    for cfg in [
+        NetworkConfig(),
+        NetworkConfig(encoder="mlp", mlp_counts=(19, 5, 8), nearest_k=4, width=16, num_heads=2),
+        NetworkConfig(encoder="birnn", hidden=32, mix_queries="all"),
+    ]:
+        again = NetworkConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
+        assert again == cfg
+    with pytest.raises(ValueError, match="unknown"):
+        NetworkConfig.from_dict({"encoder": "mix", "depth": 3})
+    with pytest.raises(ValueError, match="width"):
+        NetworkConfig.from_dict({"width": -1})
+
+
+# ----------------------------------------------------------------- shapes and masking
+
+
+@pytest.mark.parametrize("encoder", nets.ENCODERS)
+def test_output_shapes_any_leading_dims(encoder, env_obs):
+    for team, counts in (("pursuer", (19, 5, 8)), ("evader", (4, 20, 8))):
+        obs = env_obs[team]
+        a, n_act = obs["action_mask"].shape
+        net = nets.make_network(config(encoder, counts), n_act)
+        params = net.init(jax.random.key(0), obs)
+        logits, value = net.apply(params, obs)
+        assert logits.shape == (a, n_act) and value.shape == (a,)
+        batched = jax.tree.map(lambda x: jnp.stack([x] * 3), obs)
+        logits_b, value_b = net.apply(params, batched)
+        assert logits_b.shape == (3, a, n_act) and value_b.shape == (3, a)
+        _close((logits_b[1], value_b[1]), (logits, value))
+        deep = jax.tree.map(lambda x: jnp.broadcast_to(x, (2, 3, *x.shape)), obs)
+        logits_d, value_d = net.apply(params, deep)
+        assert logits_d.shape == (2, 3, a, n_act) and value_d.shape == (2, 3, a)
+        assert np.all(np.isfinite(logits)) and np.all(np.isfinite(value))
+        assert np.all(np.asarray(logits)[~np.asarray(obs["action_mask"])] == nets.MASKED_LOGIT)
+
+
+def test_masked_actions_are_never_sampled(obs20):
+    net = nets.make_network(NetworkConfig(), 39)
+    params = net.init(jax.random.key(0), obs20)
+    mask = np.zeros((20, 39), bool)
+    mask[:, 30:33] = True  # only three actions allowed
+    obs = dict(obs20, action_mask=jnp.asarray(mask))
+    logits, _ = net.apply(params, obs)
+    keys = jax.random.split(jax.random.key(1), 1000)
+    actions = np.asarray(jax.vmap(nets.sample_actions, (None, 0))(logits, keys))
+    assert actions.shape == (1000, 20) and actions.dtype == np.int32
+    assert np.all((actions >= 30) & (actions < 33))
+    assert len(np.unique(actions)) == 3
+    greedy = np.asarray(nets.greedy_actions(logits))
+    assert greedy.dtype == np.int32 and np.all((greedy >= 30) & (greedy < 33))
+    assert np.all(np.isfinite(nets.entropy(logits)))
+
+
+def test_entropy_and_log_prob_by_hand():
+    logits = jnp.array([[1.0, 2.0, nets.MASKED_LOGIT, 0.5], [0.0, 0.0, 0.0, 0.0]])
+    p0 = np.exp([1.0, 2.0, 0.5]) / np.exp([1.0, 2.0, 0.5]).sum()
+    ent = np.array([-(p0 * np.log(p0)).sum(), np.log(4.0)])
+    np.testing.assert_allclose(nets.entropy(logits), ent, rtol=1e-6)
+    actions = jnp.array([1, 3])
+    np.testing.assert_allclose(nets.log_prob(logits, actions), [np.log(p0[1]), np.log(0.25)], 1e-6)
+    assert float(nets.log_prob(logits, jnp.array([2, 0]))[0]) < -1e8  # masked: ~ -1e9, finite
+    grad = jax.grad(lambda z: jnp.sum(nets.entropy(z) + nets.log_prob(z, actions)))(logits)
+    assert np.all(np.isfinite(grad)) and float(grad[0, 2]) == 0.0
+    np.testing.assert_array_equal(nets.greedy_actions(logits), [1, 0])
+
+
+# ----------------------------------------------------------------- invariances
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [NetworkConfig(), NetworkConfig(mix_queries="all"), NetworkConfig(encoder="mean")],
+    ids=["mix", "mix-all", "mean"],
+)
+def test_permutation_invariance(cfg, obs20):
+    net = nets.make_network(cfg, 39)
+    params = net.init(jax.random.key(0), obs20)
+    out = net.apply(params, obs20)
+    for seed in range(3):
+        _close(net.apply(params, _permute(obs20, seed)), out)
+
+
+@pytest.mark.parametrize("encoder", nets.ENCODERS)
+def test_padded_entities_do_not_matter(encoder, obs20):
+    net = nets.make_network(config(encoder), 39)
+    params = net.init(jax.random.key(0), obs20)
+    out = net.apply(params, obs20)
+    padded = dict(obs20)
+    for j, (kind, mkey) in enumerate(KEYS):
+        x, m = obs20[kind], obs20[mkey]
+        junk = jnp.full((20, 3, x.shape[-1]), 1e3 * (j + 1)).at[:, 0, 0].set(jnp.nan)
+        # Interleave: a padded entity in front, two at the back.
+        padded[kind] = jnp.concatenate([junk[:, :1], x, junk[:, 1:]], axis=1)
+        fill = jnp.zeros((20, 1), bool)
+        padded[mkey] = jnp.concatenate([fill, m, fill, fill], axis=1)
+    # (MLP: the counts now exceed mlp_counts; sorting puts padding last, truncation drops it.)
+    _close(net.apply(params, padded), out)
+
+
+# ----------------------------------------------------------------- transfer across scales
+
+SCALES = {  # (teammates, opponents, obstacles) of the pursuer and evader teams
+    "16-4-4": [(16, (15, 4, 4)), (4, (3, 16, 4))],
+    "24-6-12": [(24, (23, 6, 12)), (6, (5, 24, 12))],
+    "240-60-120": [(240, (239, 60, 120)), (60, (59, 240, 120))],
+}
+
+
+@pytest.mark.parametrize("encoder", ["mix", "mean", "birnn"])
+def test_params_transfer_across_entity_counts(encoder, obs20):
+    net = nets.make_network(config(encoder), 39)
+    params = net.init(jax.random.key(0), obs20)
+    shapes = jax.tree.map(jnp.shape, params)
+    apply = jax.jit(net.apply)
+    for i, (name, teams) in enumerate(SCALES.items()):
+        for a, counts in teams:
+            obs = fake_obs(i, (2, a) if a < 100 else (a,), counts)
+            logits, value = apply(params, obs)
+            assert logits.shape == (*obs["own"].shape[:-1], 39), name
+            assert np.all(np.isfinite(logits)) and np.all(np.isfinite(value)), name
+            assert jax.tree.map(jnp.shape, net.init(jax.random.key(1), obs)) == shapes, name
+
+
+def test_mlp_pads_and_truncates(obs20):
+    net = nets.make_network(config("mlp"), 39)
+    params = net.init(jax.random.key(0), obs20)
+    out = net.apply(params, obs20)
+    for counts in [(15, 4, 4), (23, 6, 12), (0, 1, 0)]:
+        logits, value = net.apply(params, fake_obs(1, (20,), counts))
+        assert logits.shape == (20, 39) and np.all(np.isfinite(logits))
+        assert np.all(np.isfinite(value))
+    # Truncation keeps the nearest: extra entities farther than all others change nothing.
+    far = dict(obs20)
+    for kind, mkey in KEYS:
+        extra = obs20[kind][:, :2]
+        extra = extra.at[..., nets.DIST_INDEX[kind]].set(5.0)
+        far[kind] = jnp.concatenate([extra, obs20[kind]], axis=1)
+        far[mkey] = jnp.concatenate([obs20[mkey][:, :2], obs20[mkey]], axis=1)
+    _close(net.apply(params, far), out)
+    # Padding is zeros: dropping entities equals masking them out.
+    fewer = dict(obs20)
+    masked = dict(obs20)
+    for kind, mkey in KEYS:
+        d = obs20[kind][..., nets.DIST_INDEX[kind]]
+        order = jnp.argsort(d, axis=1)
+        nearest = jnp.take_along_axis(obs20[kind], order[..., None], axis=1)
+        fewer[kind], fewer[mkey] = nearest[:, :3], obs20[mkey][:, :3]
+        masked[kind] = nearest
+        masked[mkey] = obs20[mkey].at[:, 3:].set(False)
+    _close(net.apply(params, fewer), net.apply(params, masked))
+
+
+# ----------------------------------------------------------------- nearest-k
+
+
+def _nearest_only(obs, k):
+    out = dict(obs)
+    for kind, mkey in KEYS:
+        d = np.asarray(obs[kind][..., nets.DIST_INDEX[kind]])
+        idx = np.argsort(d, axis=-1, kind="stable")[..., :k]
+        out[kind] = jnp.take_along_axis(obs[kind], jnp.asarray(idx)[..., None], axis=-2)
+        out[mkey] = jnp.take_along_axis(obs[mkey], jnp.asarray(idx), axis=-1)
+    return out
+
+
+@pytest.mark.parametrize("encoder", nets.ENCODERS)
+def test_nearest_k_equals_nearest_only_obs(encoder, obs20):
+    k = 2
+    net = nets.make_network(config(encoder, (k, k, k), nearest_k=k), 39)
+    params = net.init(jax.random.key(0), obs20)
+    _close(net.apply(params, obs20), net.apply(params, _nearest_only(obs20, k)))
+    # Invalid entities are never among the kept ones: masking the nearest teammate out
+    # equals removing it.
+    obs = dict(obs20)
+    d = obs20["teammates"][..., 1]
+    first = jnp.argmin(d, axis=1)
+    obs["teammate_mask"] = obs20["teammate_mask"].at[jnp.arange(20), first].set(False)
+    ref = dict(obs)
+    keep = np.ones((20, 19), bool)
+    keep[np.arange(20), np.asarray(first)] = False
+    ref["teammates"] = obs20["teammates"][keep].reshape(20, 18, 6)
+    ref["teammate_mask"] = jnp.ones((20, 18), bool)
+    _close(net.apply(params, obs), net.apply(params, ref))
+
+
+def test_nearest_k_at_least_count_changes_nothing(obs20):
+    base = nets.make_network(NetworkConfig(), 39)
+    big = nets.make_network(NetworkConfig(nearest_k=19), 39)
+    params = base.init(jax.random.key(0), obs20)
+    _close(big.apply(params, obs20), base.apply(params, obs20))
+
+
+# ----------------------------------------------------------------- attention weights
+
+
+def _attention(net, params, obs):
+    out, state = net.apply(params, obs, mutable=["intermediates"])
+    (weights,) = state["intermediates"]["encoder"]["attention"]
+    return out, np.asarray(weights)
+
+
+@pytest.mark.parametrize("queries", nets.MIX_QUERIES)
+def test_attention_weights_are_sown(queries, obs20):
+    net = nets.make_network(NetworkConfig(mix_queries=queries), 39)
+    params = net.init(jax.random.key(0), obs20)
+    obs = dict(obs20, obstacle_mask=obs20["obstacle_mask"].at[:, -2:].set(False))
+    out, w = _attention(net, params, obs)
+    _close(out, net.apply(params, obs))  # sowing changes nothing
+    assert w.shape == (20, 4, 1 + 19 + 5 + 8)
+    np.testing.assert_allclose(w.sum(-1), 1.0, atol=1e-5)
+    assert np.all(w >= 0) and np.all(w[..., -2:] == 0)  # padded obstacles get nothing
+    batched = jax.tree.map(lambda x: jnp.stack([x, x]), obs)
+    _, wb = _attention(net, params, batched)
+    assert wb.shape == (2, 20, 4, 33)
+    np.testing.assert_allclose(wb[1], w, atol=1e-6)
+    # Token order own, teammates, opponents, obstacles, in the observation's entity order:
+    # permuting the teammates permutes their weights.
+    perm = np.random.default_rng(0).permutation(19)
+    permuted = dict(obs, teammates=obs["teammates"][:, perm])
+    _, wp = _attention(net, params, permuted)
+    np.testing.assert_allclose(wp[..., 1:20], w[..., 1:20][..., perm], atol=1e-5)
+
+
+def test_attention_weights_with_nearest_k(obs20):
+    net = nets.make_network(NetworkConfig(nearest_k=2), 39)
+    params = net.init(jax.random.key(0), obs20)
+    _, w = _attention(net, params, obs20)
+    assert w.shape == (20, 4, 33)
+    np.testing.assert_allclose(w.sum(-1), 1.0, atol=1e-5)
+    for kind, start, n in (("teammates", 1, 19), ("opponents", 20, 5), ("obstacles", 25, 8)):
+        d = np.asarray(obs20[kind][..., nets.DIST_INDEX[kind]])
+        far = np.argsort(d, axis=-1)[:, 2:]
+        got = np.take_along_axis(w[..., start : start + n], far[:, None, :], axis=-1)
+        assert np.all(got == 0), kind  # only the 2 nearest of each type are attended to
+        assert np.all(w[..., start : start + n].sum(-1) > 0), kind
+
+
+# ----------------------------------------------------------------- edge cases
+
+
+@pytest.mark.parametrize("encoder", nets.ENCODERS)
+def test_empty_entity_sets_and_gradients(encoder):
+    for counts in [(0, 3, 2), (2, 0, 0)]:
+        obs = fake_obs(2, (1, 3), counts, num_actions=5)
+        net = nets.make_network(config(encoder, (1, 1, 1)), 5)
+        params = net.init(jax.random.key(0), obs)
+        logits, value = net.apply(params, obs)
+        assert logits.shape == (1, 3, 5) and np.all(np.isfinite(value))
+
+        def loss(p, obs=obs, net=net):
+            logits, value = net.apply(p, obs)
+            acts = nets.greedy_actions(logits)
+            return jnp.sum(value**2 - nets.log_prob(logits, acts) - nets.entropy(logits))
+
+        grads = jax.grad(loss)(params)
+        assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grads))
+
+
+def test_parameter_counts_do_not_depend_on_entity_counts():
+    small, big = fake_obs(0, (4,), (3, 1, 1)), fake_obs(0, (4,), (30, 10, 20))
+    for encoder in ("mix", "mean", "birnn"):
+        net = nets.make_network(config(encoder), 39)
+        p_small = net.init(jax.random.key(0), small)
+        assert nets.num_params(p_small) == nets.num_params(net.init(jax.random.key(0), big))

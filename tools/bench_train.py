@@ -1,0 +1,142 @@
+"""Training throughput per encoder, and where the time of an iteration goes.
+
+    python tools/bench_train.py [--quick] [--out docs/bench_train.json]
+
+For each encoder and preset it times, jitted and warmed up, in the same run:
+  * the full training iteration (rollout + normalisation + GAE + PPO update of both teams);
+  * the rollout alone with the learned policies (env steps + network forward passes);
+  * the rollout with both teams scripted-free: uniformly random masked actions (env steps only).
+Shares: env = env-only rollout; networks (forward) = rollout - env; update = iteration - rollout.
+Results go to a JSON file and a Markdown table (printed, and pasted into docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import tyro
+
+from pe_mjx.config import ENCODERS
+from pe_mjx.policies import make_policy
+from pe_mjx.ppo.config import TrainConfig
+from pe_mjx.ppo.train import Trainer
+
+
+@dataclasses.dataclass(frozen=True)
+class Args:
+    out: Path = Path("docs/bench_train.json")
+    quick: bool = False
+    """Only MIX and MEAN at 20-5-8 (a smoke run)."""
+    backend: str = "kinematic"
+    """Env backend of the measured runs (mjx is measured for MIX at 20-5-8 in addition)."""
+    repeats: int = 3
+
+
+def _time(fn, state, repeats: int) -> float:
+    out = fn(state)
+    jax.block_until_ready(out)
+    best = float("inf")
+    for _ in range(repeats):
+        tic = time.perf_counter()
+        jax.block_until_ready(fn(state))
+        best = min(best, time.perf_counter() - tic)
+    return best
+
+
+def measure(config: TrainConfig, repeats: int) -> dict:
+    trainer = Trainer(config)
+    state = trainer.init()
+    tic = time.perf_counter()
+    iteration = jax.jit(trainer.iteration)
+    jax.block_until_ready(iteration(state))
+    compile_s = time.perf_counter() - tic
+    t_iter = _time(lambda s: iteration(s)[1], state, repeats)
+    rollout = jax.jit(lambda s: trainer._rollout(s, s.rng)[1])
+    t_roll = _time(rollout, state, repeats)
+    # Env only: the same rollout machinery with random masked policies for both teams.
+    saved = (trainer.learned, dict(trainer.fixed))
+    trainer.learned = ()
+    trainer.fixed = {t: make_policy("random", trainer.env_config, t) for t in ("pursuer", "evader")}
+    env_only = jax.jit(lambda s: trainer._rollout(s, s.rng)[1]["done"])
+    t_env = _time(env_only, state, repeats)
+    trainer.learned, trainer.fixed = saved
+    steps = config.steps_per_iteration
+    agents = trainer.env_config.num_agents
+    return {
+        "preset": config.preset,
+        "encoder": config.pursuer_encoder,
+        "backend": config.backend,
+        "num_envs": config.num_envs,
+        "unroll_length": config.unroll_length,
+        "compile_s": compile_s,
+        "env_steps_per_s": steps / t_iter,
+        "agent_steps_per_s": steps * agents / t_iter,
+        "share_env": t_env / t_iter,
+        "share_forward": max(t_roll - t_env, 0.0) / t_iter,
+        "share_update": max(t_iter - t_roll, 0.0) / t_iter,
+    }
+
+
+def main() -> None:
+    args = tyro.cli(Args)
+    runs = []
+    if args.quick:
+        plan = [("20-5-8", e, args.backend, 64, 32) for e in ("mix", "mean")]
+    else:
+        plan = [("20-5-8", e, args.backend, 64, 32) for e in ENCODERS]
+        plan.append(("20-5-8", "mix", "mjx", 64, 32))
+        plan += [("240-60-120", e, args.backend, 8, 16) for e in ENCODERS]
+    for preset, encoder, backend, num_envs, unroll in plan:
+        config = TrainConfig(
+            preset=preset,
+            backend=backend,
+            pursuer_encoder=encoder,
+            evader_encoder=encoder,
+            num_envs=num_envs,
+            unroll_length=unroll,
+            eval_every=0,
+        )
+        result = measure(config, args.repeats)
+        print(json.dumps(result), flush=True)
+        runs.append(result)
+    machine = {
+        "cpu": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "jax": jax.__version__,
+        "devices": [str(d) for d in jax.devices()],
+        "date": datetime.date.today().isoformat(),
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"machine": machine, "runs": runs}, indent=1))
+    print(table(runs, machine))
+
+
+def table(runs: list[dict], machine: dict) -> str:
+    lines = [
+        f"Training throughput ({machine['devices'][0]}, {machine['cores']} cores, jax "
+        f"{machine['jax']}, {machine['date']}); default network (width 32, 4 heads, hidden 64), "
+        "PPO 2 epochs x 4 minibatches.",
+        "",
+        "| preset | encoder | backend | envs x unroll | env-steps/s | agent-steps/s | env | "
+        "forward | update | compile s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in runs:
+        lines.append(
+            f"| {r['preset']} | {r['encoder']} | {r['backend']} | {r['num_envs']}x"
+            f"{r['unroll_length']} | {r['env_steps_per_s']:,.0f} | {r['agent_steps_per_s']:,.0f} "
+            f"| {r['share_env']:.0%} | {r['share_forward']:.0%} | {r['share_update']:.0%} "
+            f"| {r['compile_s']:.0f} |"
+        )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
