@@ -277,7 +277,11 @@ class MixAttentionEncoder(nn.Module):
 
     @nn.compact
     def __call__(
-        self, flat: dict[str, jax.Array], kept: dict[str, jax.Array | None], sizes: Sequence[int]
+        self,
+        flat: dict[str, jax.Array],
+        kept: dict[str, jax.Array | None],
+        sizes: Sequence[int],
+        lead: Sequence[int],
     ) -> jax.Array:
         m = flat["own"].shape[0]
         tokens = [TypeNet(self.width, name="own_net")(flat["own"])[:, None, :]]
@@ -330,7 +334,8 @@ class MixAttentionEncoder(nn.Module):
             mean_out = mean_tok + attn[:, 1]
 
         if self.is_mutable_collection("intermediates"):
-            self.sow("intermediates", "attention", self._original_order(own_w, kept, sizes))
+            weights = self._original_order(own_w, kept, sizes)
+            self.sow("intermediates", "attention", weights.reshape(*lead, *weights.shape[1:]))
         return jnp.concatenate([own_out, mean_out], axis=-1)
 
     @staticmethod
@@ -448,7 +453,7 @@ class ActorCritic(nn.Module):
         lead, flat = _flatten(obs)
         sizes = [flat[kind].shape[1] for kind in ENTITY_TYPES]
         flat, kept = _nearest(flat, self.config.nearest_k)
-        feat = self.encoder(flat, kept, sizes)  # [M, F]
+        feat = self.encoder(flat, kept, sizes, lead)  # [M, F]
 
         h = feat
         for layer in self.policy_hidden:

@@ -13,7 +13,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import E_FULL, E_STOP, P_FULL, P_STOP, SMALL, fc, variant_config
+from conftest import (
+    E_FULL,
+    E_STOP,
+    P_FULL,
+    P_STOP,
+    SMALL,
+    fc,
+    first,
+    sample_actions,
+    variant_config,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -40,22 +50,6 @@ MJX_POS_TOL = 1e-2  # metres; measured max 3.9e-3 over 10 seeds x 50 steps of 2-
 MJX_YAW_TOL = 2e-2  # radians; measured max 7.9e-3
 
 
-@jax.jit
-def sample_actions(key: jax.Array, obs: dict) -> dict[str, jax.Array]:
-    """Uniform over each agent's valid actions (works with or without a batch axis)."""
-    keys = dict(zip(TEAMS, jax.random.split(key), strict=True))
-    return {
-        t: jax.random.categorical(keys[t], jnp.where(obs[t]["action_mask"], 0.0, -jnp.inf)).astype(
-            jnp.int32
-        )
-        for t in TEAMS
-    }
-
-
-def first(tree):
-    return jax.tree.map(lambda x: x[0], tree)
-
-
 def np_obs(state, team):
     return {k: np.asarray(v) for k, v in state.obs[team].items()}
 
@@ -64,13 +58,24 @@ def np_obs(state, team):
 
 
 def check_contract(env: pe_env.PursuitEvasionEnv, state: pe_env.State, batch: tuple[int, ...]):
+    """Shapes, dtypes and finiteness (checked in numpy: no eager JAX op compiles)."""
     cfg = env.config
     k = cfg.arena.num_obstacles
     count = {"pursuer": cfg.pursuer.num_agents, "evader": cfg.evader.num_agents}
-    assert set(state.obs) == set(TEAMS)
+    obs_all, reward, done, metrics, world, info = jax.device_get(
+        (
+            state.obs,
+            state.reward,
+            state.done,
+            state.metrics,
+            state.world,
+            {k: state.info[k] for k in ("truncation", "terminated", "valid", "placement_ok")},
+        )
+    )
+    assert set(obs_all) == set(TEAMS)
     for team in TEAMS:
         a, o = count[team], count["evader" if team == "pursuer" else "pursuer"]
-        obs = state.obs[team]
+        obs = obs_all[team]
         assert set(obs) == OBS_KEYS
         shapes = {
             "own": (a, pe_env.OWN_FEATURES),
@@ -84,38 +89,31 @@ def check_contract(env: pe_env.PursuitEvasionEnv, state: pe_env.State, batch: tu
         }
         for key, shape in shapes.items():
             assert obs[key].shape == (*batch, *shape), (team, key)
-            want = jnp.bool_ if key.endswith("mask") else jnp.float32
+            want = np.bool_ if key.endswith("mask") else np.float32
             assert obs[key].dtype == want, (team, key, obs[key].dtype)
-        assert bool(jnp.all(jnp.isfinite(obs["own"])))
-        for key in ("teammates", "opponents", "obstacles"):
-            assert bool(jnp.all(jnp.isfinite(obs[key]))), (team, key)
-        assert bool(jnp.all(jnp.any(obs["action_mask"], axis=-1))), "an agent has no valid action"
-        assert state.reward[team].shape == (*batch, a)
-        assert state.reward[team].dtype == jnp.float32
-        assert bool(jnp.all(jnp.isfinite(state.reward[team])))
-        assert state.info["valid"][team].shape == (*batch, a)
-    assert state.done.shape == batch and state.done.dtype == jnp.float32
-    assert state.info["truncation"].shape == batch
-    reward_keys = {m for m in state.metrics if m.startswith("reward/")}
+            if not key.endswith("mask"):
+                assert np.isfinite(obs[key]).all(), (team, key)
+        assert obs["action_mask"].any(-1).all(), "an agent has no valid action"
+        assert reward[team].shape == (*batch, a) and reward[team].dtype == np.float32
+        assert np.isfinite(reward[team]).all()
+        assert info["valid"][team].shape == (*batch, a)
+    assert done.shape == batch and done.dtype == np.float32
+    assert info["truncation"].shape == batch and info["terminated"].shape == batch
+    reward_keys = {m for m in metrics if m.startswith("reward/")}
     assert reward_keys == {f"reward/pursuer/{t}" for t in PURSUER_TERMS} | {
         f"reward/evader/{t}" for t in EVADER_TERMS
     }
     for name in ("captures", "success_rate", "pursuit_cost", "length", "pursuer_wall"):
-        assert f"episode/{name}" in state.metrics
-    for name, value in state.metrics.items():
-        assert value.shape == batch and value.dtype == jnp.float32, name
-        assert bool(jnp.all(jnp.isfinite(value))), name
-    w = state.world
+        assert f"episode/{name}" in metrics
+    for name, value in metrics.items():
+        assert value.shape == batch and value.dtype == np.float32, name
+        assert np.isfinite(value).all(), name
     n = cfg.num_agents
-    assert w.pos.shape == (*batch, n, 2) and w.yaw.shape == (*batch, n)
-    assert w.active.dtype == jnp.bool_ and w.cause.dtype == jnp.int32
-    assert w.obstacles.shape == (*batch, k, 3)
-    assert bool(jnp.all(jnp.isfinite(w.pos))) and bool(jnp.all(jnp.isfinite(w.vel)))
-    poses = env.poses(state)
-    assert poses["pursuer"].shape == (*batch, count["pursuer"], 3)
-    assert poses["evader"].shape == (*batch, count["evader"], 3)
-    assert env.obstacles(state).shape == (*batch, k, 3)
-    assert env.active(state)["evader"].shape == (*batch, count["evader"])
+    assert world.pos.shape == (*batch, n, 2) and world.yaw.shape == (*batch, n)
+    assert world.active.dtype == np.bool_ and world.cause.dtype == np.int32
+    assert world.obstacles.shape == (*batch, k, 3)
+    assert np.isfinite(world.pos).all() and np.isfinite(world.vel).all()
+    return info
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -123,22 +121,23 @@ def check_contract(env: pe_env.PursuitEvasionEnv, state: pe_env.State, batch: tu
 def test_contract_jit_vmap(get_compiled, preset, backend):
     """Every preset and backend: jitted, vmapped (batch 2) reset and step keep SPEC 2.5's layout.
 
-    240-60-120 with MJX compiles its vmapped step in ~31 s on a 2-core CPU (under the 60 s budget),
-    so it runs the same test as the others.
+    240-60-120 with MJX: tracing and compiling its vmapped step took 31 s on an idle 2-core CPU
+    (61 s with the machine's load average at 8), under the ~60 s budget, so it runs the same test
+    as the others; a single unbatched step is barely cheaper (tracing dominates).
     """
     c = get_compiled(preset, backend)
     state = c.batch_reset(jax.random.split(jax.random.key(0), 2))
-    check_contract(c.env, state, (2,))
-    assert bool(jnp.all(state.info["placement_ok"]))
-    assert bool(jnp.all(state.done == 0))
-    key = jax.random.key(1)
+    info = check_contract(c.env, state, (2,))
+    assert info["placement_ok"].all()
+    assert np.all(np.asarray(state.done) == 0)
+    rng = np.random.default_rng(1)
     for _ in range(2):
-        key, sub = jax.random.split(key)
-        state = c.batch_step(state, sample_actions(sub, state.obs))
+        state = c.batch_step(state, sample_actions(rng, state.obs))
         check_contract(c.env, state, (2,))
-    assert bool(jnp.all(state.world.step == 2))
+    assert np.all(np.asarray(state.world.step) == 2)
     # the two arenas of the batch are different draws
-    assert not bool(jnp.allclose(state.world.pos[0], state.world.pos[1]))
+    pos = np.asarray(state.world.pos)
+    assert not np.allclose(pos[0], pos[1])
 
 
 def test_bad_backend_and_reset_to_shapes(get_compiled):
@@ -204,7 +203,7 @@ def test_capture_by_every_pursuer_within_eps_ends_episode(small):
     s = small.place([[0.02, 0.4, 0], [0.54, 0.4, math.pi]], [[0.3, 0.4, 0]], FAR_OBSTACLE)
     s = small.step(s, small.actions([P_FULL, P_STOP], E_STOP))
     assert np.asarray(s.world.cause).tolist() == [CAPTURE] * 3
-    assert not bool(jnp.any(s.world.active))
+    assert not np.asarray(s.world.active).any()
     assert np.asarray(s.world.captures).tolist() == [1, 1, 1]
     assert float(s.metrics["episode/captures"]) == 1
     assert float(s.metrics["episode/success_rate"]) == 1
@@ -254,14 +253,9 @@ def test_incapacitated_agents_never_move(small):
     assert not bool(s.world.active[0])
     frozen_pose = np.asarray(small.env.poses(s)["pursuer"][0])
     frozen_q = None if s.physics is None else np.asarray(s.physics.qpos[:3])
-    key = jax.random.key(0)
-    for t in range(40):
-        key, kp, ke = jax.random.split(key, 3)
-        actions = {
-            "pursuer": jax.random.randint(kp, (2,), 0, 39),
-            "evader": jax.random.randint(ke, (1,), 0, 95),
-        }
-        s = small.step(s, actions)
+    rng = np.random.default_rng(0)
+    for t in range(40):  # any actions, masked or not
+        s = small.step(s, small.actions(rng.integers(0, 39, 2), rng.integers(0, 95, 1)))
         np.testing.assert_array_equal(small.env.poses(s)["pursuer"][0], frozen_pose)
         if frozen_q is not None:
             np.testing.assert_array_equal(s.physics.qpos[:3], frozen_q)
@@ -291,8 +285,7 @@ def test_truncation_at_1000_steps(get_compiled):
 
         return jax.lax.scan(body, state, None, length=1000)
 
-    start = first(c.batch_reset(jnp.stack([jax.random.key(5), jax.random.key(6)])))
-    final, (done, trunc, term) = rollout(start)
+    final, (done, trunc, term) = rollout(c.reset(5))
     done, trunc = np.asarray(done), np.asarray(trunc)
     assert done[:-1].sum() == 0 and trunc[:-1].sum() == 0
     assert done[-1] == 1 and trunc[-1] == 1
@@ -460,7 +453,7 @@ def test_observations_by_hand(get_compiled):
     u_e = np.array([math.cos(yaw_e), math.sin(yaw_e)])
     p0, e0 = p0 + 0.2 * 0.2 * u_p0, e0 + 0.4 * 0.2 * u_e
     vel_p0, vel_p1, vel_e = 0.2 * u_p0, np.zeros(2), 0.4 * u_e
-    assert not bool(jnp.any(~s.world.active))
+    assert np.asarray(s.world.active).all()
     np.testing.assert_allclose(s.world.pos, [p0, p1, e0], atol=1e-6)
 
     obs = np_obs(s, "pursuer")
@@ -518,7 +511,7 @@ def test_rewards_active_evader_by_hand(get_compiled):
     o = np.array([1.45, -0.5, 0.3])
     s = c.place([[*p0, 0], [*p1, 0]], [[*e0, 0]], [o])
     s = c.step(s, c.actions(P_STOP, E_STOP))
-    assert bool(jnp.all(s.world.active))
+    assert np.asarray(s.world.active).all()
 
     def dist(a, b):
         return float(np.linalg.norm(a - b))
@@ -586,16 +579,16 @@ def test_rewards_capture_step_by_hand(get_compiled):
     # capture within epsilon but not beyond it
     s = c.place([[0.31, 0.5, math.pi], [-0.33, 0.5, 0]], [[0.0, 0.5, 0]], FAR_OBSTACLE)
     s = c.step(s, c.actions(P_STOP, E_STOP))
-    assert bool(jnp.all(s.world.active)) and float(s.done) == 0
+    assert np.asarray(s.world.active).all() and float(s.done) == 0
 
 
 def test_no_reward_after_incapacitation(small):
     s = small.place([[-0.5, 1.0, 0], [-0.29, 1.0, math.pi]], [[0.8, -0.3, 0]], FAR_OBSTACLE)
     s = small.step(s, small.actions(P_FULL, E_STOP))
     assert float(s.metrics["reward/pursuer/teammate"]) == pytest.approx(-20.0)
-    assert bool(jnp.all(s.info["valid"]["pursuer"]))
+    assert np.asarray(s.info["valid"]["pursuer"]).all()
     s = small.step(s, small.actions(P_FULL, E_FULL))
-    assert not bool(jnp.any(s.info["valid"]["pursuer"]))
+    assert not np.asarray(s.info["valid"]["pursuer"]).any()
     np.testing.assert_array_equal(s.reward["pursuer"], [0.0, 0.0])
     assert float(s.metrics["reward/pursuer/teammate"]) == 0
 
@@ -612,18 +605,17 @@ def test_mjx_matches_kinematic_reference(get_compiled):
     kin, mjx = get_compiled(SMALL, "kinematic"), get_compiled(SMALL, "mjx")
     compared = total = 0
     for seed in range(4):
-        keys = jnp.stack([jax.random.key(seed), jax.random.key(seed + 1)])
-        sk, sm = first(kin.batch_reset(keys)), first(mjx.batch_reset(keys))
+        sk, sm = kin.reset(seed), mjx.reset(seed)
         np.testing.assert_array_equal(sk.world.pos, sm.world.pos)
         both = np.ones(kin.env.num_agents, bool)
-        key = jax.random.key(100 + seed)
+        rng = np.random.default_rng(100 + seed)
         for _ in range(50):
-            key, sub = jax.random.split(key)
-            actions = sample_actions(sub, sk.obs)
+            actions = sample_actions(rng, sk.obs)
             sk, sm = kin.step(sk, actions), mjx.step(sm, actions)
             both &= np.asarray(sk.world.active) & np.asarray(sm.world.active)
-            dpos = np.abs(np.asarray(sm.world.pos - sk.world.pos)).max(-1)
-            dyaw = np.abs(np.asarray(pe_env.wrap_angle(sm.world.yaw - sk.world.yaw)))
+            dpos = np.abs(np.asarray(sm.world.pos) - np.asarray(sk.world.pos)).max(-1)
+            dyaw = np.asarray(sm.world.yaw, np.float64) - np.asarray(sk.world.yaw)
+            dyaw = np.abs((dyaw + np.pi) % (2 * np.pi) - np.pi)
             assert np.all(dpos[both] <= MJX_POS_TOL), dpos
             assert np.all(dyaw[both] <= MJX_YAW_TOL), dyaw
             compared += both.sum()
@@ -637,13 +629,11 @@ def test_same_seed_same_trajectory(get_compiled, backend):
 
     def run():
         state = c.batch_reset(jnp.stack([jax.random.key(7), jax.random.key(7)]))
-        key = jax.random.key(8)
+        rng = np.random.default_rng(8)
         states = []
         for _ in range(10):
-            key, sub = jax.random.split(key)
-            actions = jax.tree.map(
-                lambda x: jnp.stack([x, x]), sample_actions(sub, first(state.obs))
-            )
+            one = sample_actions(rng, first(state.obs))
+            actions = {t: jnp.asarray(np.stack([a, a])) for t, a in one.items()}
             state = c.batch_step(state, actions)
             states.append(state.world)
         return states
@@ -678,7 +668,7 @@ def test_placement_never_overlaps(get_compiled, preset):
     @given(seed=st.integers(0, 2**31 - 2))
     def check(seed):
         states = c.batch_reset(jnp.stack([jax.random.key(seed), jax.random.key(seed + 1)]))
-        assert bool(jnp.all(states.info["placement_ok"]))
+        assert np.asarray(states.info["placement_ok"]).all()
         for b in range(2):
             o = np.asarray(states.world.obstacles[b], np.float64)
             pos = np.concatenate([o[:, :2], np.asarray(states.world.pos[b], np.float64)])
@@ -721,7 +711,7 @@ def test_auto_reset_draws_fresh_arena_and_keeps_finished_step(get_compiled):
         assert float(s.metrics["episode/length"]) == 2
         # ... while world and observations are a fresh draw
         assert int(s.world.step) == 0
-        assert bool(jnp.all(s.world.active))
+        assert np.asarray(s.world.active).all()
         layouts.append(np.asarray(s.world.obstacles))
         assert not np.allclose(layouts[-1], layouts[-2]), f"episode {episode}: same arena"
         pos, obstacles = np.asarray(s.world.pos), np.asarray(s.world.obstacles)

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from conftest import first
 
 from pe_mjx import export, scene
 from pe_mjx.config import get_preset
@@ -30,7 +31,7 @@ def test_arena_xml_matches_reset(loaded, get_compiled, backend):
     c = get_compiled(PRESET, backend)
     # batch_reset (shared with the contract tests) on [key(SEED), key(SEED + 1)]
     keys = jnp.stack([jax.random.key(SEED), jax.random.key(SEED + 1)])
-    state = jax.tree.map(lambda x: x[0], c.batch_reset(keys))
+    state = first(c.batch_reset(keys))
     poses = c.env.poses(state)
     expected = np.concatenate([np.asarray(poses["pursuer"]), np.asarray(poses["evader"])])
     # exact: the XML carries the float32 values at full precision
@@ -61,16 +62,17 @@ def test_layout_equals_reset_and_depends_on_seed(get_compiled):
     c = get_compiled(PRESET, "kinematic")
     keys = jnp.stack([jax.random.key(SEED), jax.random.key(SEED + 1)])
     states = c.batch_reset(keys)
-    layouts = []
-    for b in range(2):
-        poses = c.env.poses(jax.tree.map(lambda x, b=b: x[b], states))
-        layouts.append(
-            scene.Layout(
-                pursuer=np.asarray(poses["pursuer"]),
-                evader=np.asarray(poses["evader"]),
-                obstacles=np.asarray(states.world.obstacles[b]),
-            )
+    pos, yaw = np.asarray(states.world.pos), np.asarray(states.world.yaw)
+    poses = np.concatenate([pos, yaw[..., None]], axis=-1)
+    p = c.env.num_pursuers
+    layouts = [
+        scene.Layout(
+            pursuer=poses[b, :p],
+            evader=poses[b, p:],
+            obstacles=np.asarray(states.world.obstacles[b]),
         )
+        for b in range(2)
+    ]
     xml = scene.scene_xml(get_preset(PRESET), layouts[0])
     assert xml == export.scene_xml(get_preset(PRESET), layouts[0])
     assert not np.allclose(layouts[1].obstacles, layouts[0].obstacles)

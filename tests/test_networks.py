@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 
 import jax
@@ -73,6 +74,31 @@ def obs20():
     return fake_obs(0, (20,), (19, 5, 8))
 
 
+# Networks and their jitted functions are cached per config, so that tests sharing a config and
+# input shapes share one compilation.
+
+
+@functools.cache
+def network(cfg: NetworkConfig, num_actions: int = 39):
+    return nets.make_network(cfg, num_actions)
+
+
+@functools.cache
+def _jitted(net, method: str):
+    return jax.jit(getattr(net, method))
+
+
+def build(cfg: NetworkConfig, obs, num_actions: int = 39):
+    """(network, params initialised on `obs`)."""
+    net = network(cfg, num_actions)
+    return net, _jitted(net, "init")(jax.random.key(0), obs)
+
+
+def run(net, params, obs):
+    """The jitted apply."""
+    return _jitted(net, "apply")(params, obs)
+
+
 def _close(a, b, tol=1e-5):
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
         np.testing.assert_allclose(np.asarray(x), np.asarray(y), atol=tol, rtol=tol)
@@ -129,31 +155,27 @@ def test_config_round_trip():
 
 @pytest.mark.parametrize("encoder", nets.ENCODERS)
 def test_output_shapes_any_leading_dims(encoder, env_obs):
-    for team, counts in (("pursuer", (19, 5, 8)), ("evader", (4, 20, 8))):
+    for team, counts, lead in (("pursuer", (19, 5, 8), (3,)), ("evader", (4, 20, 8), (2, 3))):
         obs = env_obs[team]
         a, n_act = obs["action_mask"].shape
-        net = nets.make_network(config(encoder, counts), n_act)
-        params = net.init(jax.random.key(0), obs)
-        logits, value = net.apply(params, obs)
+        net, params = build(config(encoder, counts), obs, n_act)
+        apply = _jitted(net, "apply")
+        logits, value = apply(params, obs)
         assert logits.shape == (a, n_act) and value.shape == (a,)
-        batched = jax.tree.map(lambda x: jnp.stack([x] * 3), obs)
-        logits_b, value_b = net.apply(params, batched)
-        assert logits_b.shape == (3, a, n_act) and value_b.shape == (3, a)
-        _close((logits_b[1], value_b[1]), (logits, value))
-        deep = jax.tree.map(lambda x: jnp.broadcast_to(x, (2, 3, *x.shape)), obs)
-        logits_d, value_d = net.apply(params, deep)
-        assert logits_d.shape == (2, 3, a, n_act) and value_d.shape == (2, 3, a)
         assert np.all(np.isfinite(logits)) and np.all(np.isfinite(value))
         assert np.all(np.asarray(logits)[~np.asarray(obs["action_mask"])] == nets.MASKED_LOGIT)
+        batched = jax.tree.map(lambda x, lead=lead: jnp.broadcast_to(x, (*lead, *x.shape)), obs)
+        logits_b, value_b = apply(params, batched)
+        assert logits_b.shape == (*lead, a, n_act) and value_b.shape == (*lead, a)
+        _close((logits_b[(0,) * len(lead)], value_b[(0,) * len(lead)]), (logits, value))
 
 
 def test_masked_actions_are_never_sampled(obs20):
-    net = nets.make_network(NetworkConfig(), 39)
-    params = net.init(jax.random.key(0), obs20)
+    net, params = build(NetworkConfig(), obs20, 39)
     mask = np.zeros((20, 39), bool)
     mask[:, 30:33] = True  # only three actions allowed
     obs = dict(obs20, action_mask=jnp.asarray(mask))
-    logits, _ = net.apply(params, obs)
+    logits, _ = run(net, params, obs)
     keys = jax.random.split(jax.random.key(1), 1000)
     actions = np.asarray(jax.vmap(nets.sample_actions, (None, 0))(logits, keys))
     assert actions.shape == (1000, 20) and actions.dtype == np.int32
@@ -186,18 +208,16 @@ def test_entropy_and_log_prob_by_hand():
     ids=["mix", "mix-all", "mean"],
 )
 def test_permutation_invariance(cfg, obs20):
-    net = nets.make_network(cfg, 39)
-    params = net.init(jax.random.key(0), obs20)
-    out = net.apply(params, obs20)
+    net, params = build(cfg, obs20, 39)
+    out = run(net, params, obs20)
     for seed in range(3):
-        _close(net.apply(params, _permute(obs20, seed)), out)
+        _close(run(net, params, _permute(obs20, seed)), out)
 
 
 @pytest.mark.parametrize("encoder", nets.ENCODERS)
 def test_padded_entities_do_not_matter(encoder, obs20):
-    net = nets.make_network(config(encoder), 39)
-    params = net.init(jax.random.key(0), obs20)
-    out = net.apply(params, obs20)
+    net, params = build(config(encoder), obs20, 39)
+    out = run(net, params, obs20)
     padded = dict(obs20)
     for j, (kind, mkey) in enumerate(KEYS):
         x, m = obs20[kind], obs20[mkey]
@@ -207,7 +227,7 @@ def test_padded_entities_do_not_matter(encoder, obs20):
         fill = jnp.zeros((20, 1), bool)
         padded[mkey] = jnp.concatenate([fill, m, fill, fill], axis=1)
     # (MLP: the counts now exceed mlp_counts; sorting puts padding last, truncation drops it.)
-    _close(net.apply(params, padded), out)
+    _close(run(net, params, padded), out)
 
 
 # ----------------------------------------------------------------- transfer across scales
@@ -221,25 +241,30 @@ SCALES = {  # (teammates, opponents, obstacles) of the pursuer and evader teams
 
 @pytest.mark.parametrize("encoder", ["mix", "mean", "birnn"])
 def test_params_transfer_across_entity_counts(encoder, obs20):
-    net = nets.make_network(config(encoder), 39)
-    params = net.init(jax.random.key(0), obs20)
+    net, params = build(config(encoder), obs20, 39)
     shapes = jax.tree.map(jnp.shape, params)
-    apply = jax.jit(net.apply)
-    for i, (name, teams) in enumerate(SCALES.items()):
-        for a, counts in teams:
-            obs = fake_obs(i, (2, a) if a < 100 else (a,), counts)
-            logits, value = apply(params, obs)
-            assert logits.shape == (*obs["own"].shape[:-1], 39), name
-            assert np.all(np.isfinite(logits)) and np.all(np.isfinite(value)), name
-            assert jax.tree.map(jnp.shape, net.init(jax.random.key(1), obs)) == shapes, name
+    apply = _jitted(net, "apply")
+    # One team per scale keeps the test fast; both teams' shapes are covered across the scales.
+    for i, (name, (a, counts)) in enumerate(
+        [
+            ("16-4-4", SCALES["16-4-4"][0]),
+            ("24-6-12", SCALES["24-6-12"][1]),
+            ("240-60-120", SCALES["240-60-120"][0]),
+        ]
+    ):
+        obs = fake_obs(i, (a,), counts)
+        logits, value = apply(params, obs)
+        assert logits.shape == (a, 39) and value.shape == (a,), name
+        assert np.all(np.isfinite(logits)) and np.all(np.isfinite(value)), name
+        init_shapes = jax.eval_shape(net.init, jax.random.key(1), obs)
+        assert jax.tree.map(jnp.shape, init_shapes) == shapes, name
 
 
 def test_mlp_pads_and_truncates(obs20):
-    net = nets.make_network(config("mlp"), 39)
-    params = net.init(jax.random.key(0), obs20)
-    out = net.apply(params, obs20)
+    net, params = build(config("mlp"), obs20, 39)
+    out = run(net, params, obs20)
     for counts in [(15, 4, 4), (23, 6, 12), (0, 1, 0)]:
-        logits, value = net.apply(params, fake_obs(1, (20,), counts))
+        logits, value = run(net, params, fake_obs(1, (20,), counts))
         assert logits.shape == (20, 39) and np.all(np.isfinite(logits))
         assert np.all(np.isfinite(value))
     # Truncation keeps the nearest: extra entities farther than all others change nothing.
@@ -249,7 +274,7 @@ def test_mlp_pads_and_truncates(obs20):
         extra = extra.at[..., nets.DIST_INDEX[kind]].set(5.0)
         far[kind] = jnp.concatenate([extra, obs20[kind]], axis=1)
         far[mkey] = jnp.concatenate([obs20[mkey][:, :2], obs20[mkey]], axis=1)
-    _close(net.apply(params, far), out)
+    _close(run(net, params, far), out)
     # Padding is zeros: dropping entities equals masking them out.
     fewer = dict(obs20)
     masked = dict(obs20)
@@ -260,7 +285,7 @@ def test_mlp_pads_and_truncates(obs20):
         fewer[kind], fewer[mkey] = nearest[:, :3], obs20[mkey][:, :3]
         masked[kind] = nearest
         masked[mkey] = obs20[mkey].at[:, 3:].set(False)
-    _close(net.apply(params, fewer), net.apply(params, masked))
+    _close(run(net, params, fewer), run(net, params, masked))
 
 
 # ----------------------------------------------------------------- nearest-k
@@ -279,9 +304,8 @@ def _nearest_only(obs, k):
 @pytest.mark.parametrize("encoder", nets.ENCODERS)
 def test_nearest_k_equals_nearest_only_obs(encoder, obs20):
     k = 2
-    net = nets.make_network(config(encoder, (k, k, k), nearest_k=k), 39)
-    params = net.init(jax.random.key(0), obs20)
-    _close(net.apply(params, obs20), net.apply(params, _nearest_only(obs20, k)))
+    net, params = build(config(encoder, (k, k, k), nearest_k=k), obs20, 39)
+    _close(run(net, params, obs20), run(net, params, _nearest_only(obs20, k)))
     # Invalid entities are never among the kept ones: masking the nearest teammate out
     # equals removing it.
     obs = dict(obs20)
@@ -293,32 +317,30 @@ def test_nearest_k_equals_nearest_only_obs(encoder, obs20):
     keep[np.arange(20), np.asarray(first)] = False
     ref["teammates"] = obs20["teammates"][keep].reshape(20, 18, 6)
     ref["teammate_mask"] = jnp.ones((20, 18), bool)
-    _close(net.apply(params, obs), net.apply(params, ref))
+    _close(run(net, params, obs), run(net, params, ref))
 
 
 def test_nearest_k_at_least_count_changes_nothing(obs20):
-    base = nets.make_network(NetworkConfig(), 39)
-    big = nets.make_network(NetworkConfig(nearest_k=19), 39)
-    params = base.init(jax.random.key(0), obs20)
-    _close(big.apply(params, obs20), base.apply(params, obs20))
+    base, params = build(NetworkConfig(), obs20)
+    big = network(NetworkConfig(nearest_k=19), 39)
+    _close(run(big, params, obs20), run(base, params, obs20))
 
 
 # ----------------------------------------------------------------- attention weights
 
 
 def _attention(net, params, obs):
-    out, state = net.apply(params, obs, mutable=["intermediates"])
+    out, state = jax.jit(functools.partial(net.apply, mutable=["intermediates"]))(params, obs)
     (weights,) = state["intermediates"]["encoder"]["attention"]
     return out, np.asarray(weights)
 
 
 @pytest.mark.parametrize("queries", nets.MIX_QUERIES)
 def test_attention_weights_are_sown(queries, obs20):
-    net = nets.make_network(NetworkConfig(mix_queries=queries), 39)
-    params = net.init(jax.random.key(0), obs20)
+    net, params = build(NetworkConfig(mix_queries=queries), obs20, 39)
     obs = dict(obs20, obstacle_mask=obs20["obstacle_mask"].at[:, -2:].set(False))
     out, w = _attention(net, params, obs)
-    _close(out, net.apply(params, obs))  # sowing changes nothing
+    _close(out, run(net, params, obs))  # sowing changes nothing
     assert w.shape == (20, 4, 1 + 19 + 5 + 8)
     np.testing.assert_allclose(w.sum(-1), 1.0, atol=1e-5)
     assert np.all(w >= 0) and np.all(w[..., -2:] == 0)  # padded obstacles get nothing
@@ -335,8 +357,7 @@ def test_attention_weights_are_sown(queries, obs20):
 
 
 def test_attention_weights_with_nearest_k(obs20):
-    net = nets.make_network(NetworkConfig(nearest_k=2), 39)
-    params = net.init(jax.random.key(0), obs20)
+    net, params = build(NetworkConfig(nearest_k=2), obs20, 39)
     _, w = _attention(net, params, obs20)
     assert w.shape == (20, 4, 33)
     np.testing.assert_allclose(w.sum(-1), 1.0, atol=1e-5)
@@ -355,17 +376,17 @@ def test_attention_weights_with_nearest_k(obs20):
 def test_empty_entity_sets_and_gradients(encoder):
     for counts in [(0, 3, 2), (2, 0, 0)]:
         obs = fake_obs(2, (1, 3), counts, num_actions=5)
-        net = nets.make_network(config(encoder, (1, 1, 1)), 5)
-        params = net.init(jax.random.key(0), obs)
-        logits, value = net.apply(params, obs)
-        assert logits.shape == (1, 3, 5) and np.all(np.isfinite(value))
+        net, params = build(config(encoder, (1, 1, 1)), obs, 5)
 
         def loss(p, obs=obs, net=net):
             logits, value = net.apply(p, obs)
             acts = nets.greedy_actions(logits)
-            return jnp.sum(value**2 - nets.log_prob(logits, acts) - nets.entropy(logits))
+            loss = jnp.sum(value**2 - nets.log_prob(logits, acts) - nets.entropy(logits))
+            return loss, (logits, value)
 
-        grads = jax.grad(loss)(params)
+        (_, (logits, value)), grads = jax.jit(jax.value_and_grad(loss, has_aux=True))(params)
+        assert logits.shape == (1, 3, 5) and value.shape == (1, 3)
+        assert np.all(np.isfinite(logits)) and np.all(np.isfinite(value))
         assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grads))
 
 
@@ -373,5 +394,5 @@ def test_parameter_counts_do_not_depend_on_entity_counts():
     small, big = fake_obs(0, (4,), (3, 1, 1)), fake_obs(0, (4,), (30, 10, 20))
     for encoder in ("mix", "mean", "birnn"):
         net = nets.make_network(config(encoder), 39)
-        p_small = net.init(jax.random.key(0), small)
-        assert nets.num_params(p_small) == nets.num_params(net.init(jax.random.key(0), big))
+        n_small = nets.num_params(jax.eval_shape(net.init, jax.random.key(0), small))
+        assert n_small == nets.num_params(jax.eval_shape(net.init, jax.random.key(0), big))

@@ -5,22 +5,22 @@
 
 What is timed: the full `env.step` (physics, events, observations with action masks, rewards and
 metrics), `jit` of `vmap` over a batch of arenas, stepped `--steps` times per call under
-`jax.lax.scan`, with random actions drawn among the valid ones (from each state's action mask;
-`--actions fixed` drives every agent straight at full speed instead). There is no auto-reset: the
-step's cost does not depend on the state (everything is dense). The anchor is JaxMARL's
-`MPE_simple_tag_v3` with the same counts (pursuers = adversaries, evaders = good agents,
-obstacles = landmarks), random actions, its jitted `vmap`ped step (which includes its own
-auto-reset) under the same scan, with observations and rewards kept in the carry so that XLA cannot
-drop them. JaxMARL is the `bench` extra (`pip install -e ".[bench]"`); without it those rows are
-recorded as skipped.
+`jax.lax.scan`. Actions are random and valid: one uniform draw per agent over all its actions, and
+a draw that the state's action mask forbids becomes a stop (v = 0, omega = 0); `--actions fixed`
+drives every agent straight at full speed. There is no auto-reset; a step's cost does not depend on
+the state (everything is dense). The anchor is JaxMARL's `MPE_simple_tag_v3` with the same counts
+(pursuers = adversaries, evaders = good agents, obstacles = landmarks), random actions, its jitted
+`vmap`ped step (which includes its own auto-reset) under the same scan, with observations and
+rewards kept in the carry so that XLA cannot drop them. JaxMARL is the `bench` extra
+(`pip install -e ".[bench]"`); without it those rows are recorded as skipped.
 
 Each (implementation, preset, batch) runs in its own subprocess, so that its peak resident set size
 (`resource.getrusage(RUSAGE_SELF).ru_maxrss`, which includes the ~0.5 GB of Python, JAX and XLA
 loaded before anything is built; reported separately as `baseline_rss_mb`) belongs to it alone.
 Configurations predicted, from the smaller batches of the same implementation, to need more than
-`--max-memory-gb` or more than `--max-seconds` are skipped and recorded with the reason; so is one
-that runs past the hard `--timeout`. Throughput is the best of the timed calls (the machine is
-shared and noisy: the best call is the least disturbed one); the median is in the JSON too.
+`--max-memory-gb` or more than `--max-seconds-total` are skipped and recorded with the reason; so
+is one that runs past the hard `--timeout`. Throughput is the best of the timed calls (the machine
+is shared and noisy: the best call is the least disturbed one); the median is in the JSON too.
 Implementations run interleaved per batch size, so the ours/JaxMARL ratios come from the same
 minutes of the same run.
 
@@ -92,10 +92,11 @@ def _rollout_ours(preset: str, backend: str, batch: int, steps: int, actions: st
     n_agents = env.num_agents
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
 
-    straight = {}  # full speed, omega = 0 (action index = n_v * N_omega + n_omega)
+    straight, stop = {}, {}  # omega = 0 at full speed and at v = 0 (index = n_v N_omega + n_omega)
     for team in ("pursuer", "evader"):
         t = env.config.team(team)
         straight[team] = (t.num_speeds - 1) * t.num_turn_rates + t.num_turn_rates // 2
+        stop[team] = t.num_turn_rates // 2
 
     def choose(key, state):
         out = {}
@@ -103,10 +104,14 @@ def _rollout_ours(preset: str, backend: str, batch: int, steps: int, actions: st
             mask = state.obs[team]["action_mask"]
             if actions == "fixed":
                 out[team] = jnp.full(mask.shape[:-1], straight[team], jnp.int32)
-            else:  # uniform among the valid actions, one draw per agent (as cheap as JaxMARL's)
-                u = jax.random.uniform(k, mask.shape[:-1])
-                nth = jnp.floor(u * jnp.sum(mask, axis=-1)).astype(jnp.int32)
-                out[team] = jnp.argmax(jnp.cumsum(mask, axis=-1) > nth[..., None], axis=-1)
+            else:
+                # One uniform draw per agent over all actions, as cheap as JaxMARL's random
+                # actions; one the mask forbids becomes a stop (v = 0, omega = 0), which the mask
+                # always allows when no minimum turning radius is set. (Sampling from the masked
+                # categorical instead costs more than the step itself on CPU.)
+                pick = jax.random.randint(k, mask.shape[:-1], 0, mask.shape[-1])
+                ok = jnp.take_along_axis(mask, pick[..., None], axis=-1)[..., 0]
+                out[team] = jnp.where(ok, pick, stop[team])
         return out
 
     def rollout(carry):
@@ -593,7 +598,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--batches", nargs="+", type=int)
     ap.add_argument("--impls", nargs="+", choices=IMPLS, default=list(IMPLS))
     ap.add_argument("--steps", type=int, help="env steps per call, under lax.scan (default 20)")
-    ap.add_argument("--actions", choices=("masked-random", "fixed"), default="masked-random")
+    ap.add_argument("--actions", choices=("random", "fixed"), default="random")
     ap.add_argument("--min-calls", type=int, help="timed calls per configuration (default 5)")
     ap.add_argument("--min-seconds", type=float, default=3.0, help="timed seconds at least")
     ap.add_argument("--max-seconds", type=float, default=60.0, help="stop timing after this")

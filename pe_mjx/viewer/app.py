@@ -68,6 +68,8 @@ class ViewerOptions:
     deterministic: bool = False
     loop: bool = True
     """Start new episodes when every arena is done (replays restart from frame 0)."""
+    hold: float = HOLD_SECONDS
+    """Seconds the last frame of a finished episode stays on screen before the next one."""
     play: bool = True
     host: str = "127.0.0.1"
     port: int = 8080
@@ -439,6 +441,7 @@ class Viewer:
             self.source.seek(0)
         elif isinstance(self.source, LiveSource):
             self.source.reset(seed)
+            self.gui_seed.value = seed
             self._status(self._live_status())
         self._hold_until = None
         self._push_frame()
@@ -717,7 +720,7 @@ class Viewer:
                 return
             now = time.monotonic()
             if self._hold_until is None and not self._step_once:
-                self._hold_until = now + HOLD_SECONDS
+                self._hold_until = now + self.options.hold
                 return
             if self._hold_until is not None and now < self._hold_until and not self._step_once:
                 return

@@ -266,6 +266,7 @@ class Page:
     def click(self, x: float, y: float) -> None:
         """A real left click at (x, y): mouse moved, pressed and released by the browser."""
         base = {"x": x, "y": y, "button": "left", "clickCount": 1}
+        self.send("Page.bringToFront")
         self.send("Input.dispatchMouseEvent", {"type": "mouseMoved", "x": x, "y": y})
         self.send("Input.dispatchMouseEvent", {"type": "mousePressed", **base})
         self.send("Input.dispatchMouseEvent", {"type": "mouseReleased", **base})
