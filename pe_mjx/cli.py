@@ -123,8 +123,9 @@ class ViewArgs:
     """Pursuer policy: "scripted", "random", or a `pe-mjx train` run directory."""
     evaders: str = "scripted"
     """Evader policy: "scripted", "random", or a `pe-mjx train` run directory."""
-    arenas: int = 1
-    """Arenas shown side by side in a grid."""
+    arenas: int | None = None
+    """Arenas shown side by side in a grid (default 1; for a replay the file's first arenas,
+    at most 16)."""
     backend: str = "mjx"
     """Env backend: "mjx" or "kinematic" (exact arcs, compiles and runs faster)."""
     seed: int = 0
@@ -147,7 +148,7 @@ class ViewArgs:
 def run_view(args: ViewArgs) -> None:
     from pe_mjx.trajectory import TrajectoryError
 
-    if args.arenas < 1:
+    if args.arenas is not None and args.arenas < 1:
         _fail(f"--arenas must be >= 1, got {args.arenas}")
     if args.backend not in ("mjx", "kinematic"):
         _fail(f"unknown backend {args.backend!r}; expected mjx or kinematic")
@@ -156,7 +157,7 @@ def run_view(args: ViewArgs) -> None:
         from pe_mjx.trajectory import load as load_trajectory
 
         try:
-            traj = load_trajectory(args.replay).select(args.arenas if args.arenas > 1 else 1_000)
+            traj = load_trajectory(args.replay).select(args.arenas or 16)
         except TrajectoryError as err:
             _fail(str(err))
     else:
@@ -173,7 +174,7 @@ def run_view(args: ViewArgs) -> None:
                     args.preset,
                     args.pursuers,
                     args.evaders,
-                    args.arenas,
+                    args.arenas or 1,
                     args.backend,
                     args.seed,
                     args.steps,
@@ -190,7 +191,7 @@ def run_view(args: ViewArgs) -> None:
         preset=args.preset if traj is None else traj.config.name,
         pursuers=args.pursuers,
         evaders=args.evaders,
-        arenas=args.arenas,
+        arenas=args.arenas or 1,
         backend=args.backend,
         seed=args.seed,
         speed=args.speed,

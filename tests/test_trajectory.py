@@ -173,3 +173,25 @@ def test_select_and_from_episodes():
     final = State(World(cause=traj.cause[-1], obstacles=traj.obstacles))
     rebuilt = from_episodes(traj.config, {"poses": traj.poses, "active": traj.active}, final)
     np.testing.assert_array_equal(rebuilt.cause, traj.cause)
+
+
+def test_recorded_episodes_round_trip(tmp_path):
+    """The evaluator's path: play_episodes(record=True) -> from_episodes -> save -> load."""
+    import jax
+
+    from pe_mjx.config import TEAMS
+    from pe_mjx.env import PursuitEvasionEnv
+    from pe_mjx.episodes import play_episodes
+    from pe_mjx.policies import make_policy
+
+    config = get_preset(PRESET).replace(max_steps=12)
+    env = PursuitEvasionEnv(config, backend="kinematic")
+    policies = {t: make_policy("random", config, t) for t in TEAMS}
+    keys = jax.random.split(jax.random.key(0), 2)
+    final, record = jax.jit(lambda k: play_episodes(env, policies, k, record=True))(keys)
+    traj = from_episodes(config, record, final, {"pursuer": "random"})
+    back = load(save(tmp_path / "pairing-0.npz", traj))
+    assert back.poses.shape == (13, 2, 3, 3)
+    np.testing.assert_array_equal(back.cause[-1], np.asarray(final.world.cause))
+    np.testing.assert_array_equal(back.obstacles, np.asarray(final.world.obstacles))
+    np.testing.assert_allclose(back.poses[-1, :, :, :2], np.asarray(final.world.pos), atol=1e-6)

@@ -121,6 +121,7 @@ def main() -> None:
     if find_chromium() is None:
         sys.exit("bench_viewer: needs Chromium (apt-get install chromium)")
     results = []
+    load_before = os.getloadavg()[0]
     with Browser.launch() as browser:
         for i, backend in enumerate(args.backends):
             results.append(measure(args, backend, browser, args.screenshot if i == 0 else None))
@@ -137,6 +138,7 @@ def main() -> None:
             "platform": platform.platform(),
             "jax": jax.__version__,
             "device": str(jax.devices()[0]),
+            "load_average_1min_at_start": round(load_before, 2),
         },
         "date": time.strftime("%Y-%m-%d"),
         "results": results,

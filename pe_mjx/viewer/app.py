@@ -735,9 +735,11 @@ class Viewer:
             source.advance()
         self._push_frame()
 
-    def _run_command(self, command: Callable[[], None]) -> None:
+    def _run_command(self, command: Callable[[], None]) -> bool:
+        """Runs one command; an error is reported (GUI and stderr) and False returned."""
         try:
             command()
+            return True
         except Exception as err:  # never let a command kill the loop
             message = str(err) or type(err).__name__
             if not isinstance(err, ValueError | FileExistsError | OSError):
@@ -746,6 +748,7 @@ class Viewer:
             self._report(message)
             if self.source is not None and self.mode == "live" and self.source.kind == "live":
                 self._status(self._live_status())
+            return False
         finally:
             if self.source is None and self.mode != "training" and self.errors:
                 self._ready.set()  # startup failed; wait_ready raises
@@ -775,7 +778,8 @@ class Viewer:
                 if now < next_time:
                     continue
                 next_time = max(next_time + 1.0 / self.speed, now)
-            self._run_command(self._advance)
+            if not self._run_command(self._advance):
+                self.playing = False  # one report, not one per frame
             self._step_once = False
 
 

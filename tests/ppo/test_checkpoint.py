@@ -248,3 +248,22 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
     events = list((out / "tb").iterdir())
     assert events, "no TensorBoard event files"
     assert Path(out / "config.json").is_file()
+
+
+def test_a_team_can_be_frozen_at_a_checkpoint(runs):
+    """--evader <run>: the evader plays the run's policy, unchanged, while the pursuer learns."""
+    from pe_mjx.ppo.train import Trainer
+
+    root, _, _ = runs
+    config = TrainConfig.from_dict({**CONFIG.to_dict(), "evader": str(root / "straight")})
+    trainer = Trainer(config)
+    assert trainer.learned == ("pursuer",)
+    state = trainer.init()
+    new, metrics = jax.jit(trainer.iteration)(state)
+    assert "evader" not in new.teams and "loss/pursuer/entropy" in metrics
+    # The frozen policy acts like the checkpoint's evader policy.
+    obs = jax.tree.map(lambda x: x[0], state.env_state.obs["evader"])
+    key = jax.random.key(5)
+    frozen = trainer.fixed["evader"](obs, key)
+    direct = load_policy(root / "straight", team="evader")(obs, key)
+    np.testing.assert_array_equal(np.asarray(frozen), np.asarray(direct))
