@@ -14,7 +14,7 @@ $(BIN)/pe-mjx: pyproject.toml
 venv: $(BIN)/pe-mjx
 
 demo: venv
-	$(BIN)/pe-mjx demo
+	$(BIN)/pe-mjx view --backend kinematic --arenas 4
 
 test: venv
 	$(BIN)/ruff check .
