@@ -19,12 +19,22 @@ MLP). "Type net" below is ``relu(Dense(width))`` with one set of weights per ent
 
 * ``"mix"`` (Mix-Attention, paper Fig. 2): type nets turn every entity into a token of size
   ``width``; token order is **own, teammates, opponents, obstacles** (1 + T + O + K tokens). One
-  multi-head self-attention layer (Q/K/V and output projections shared by all types; the type nets
-  make the types distinguishable) runs over all tokens, with padded tokens masked out as keys, and a
-  residual connection ``out = token + attn(token)``. Feature: ``[out_own, masked mean of out over
-  all valid tokens]`` (``2 * width``). The mean is computed exactly but cheaply, by averaging the
-  attention rows before multiplying by V (the output projection is affine, and each row sums to 1).
-  Permutation-invariant within each type.
+  multi-head attention layer (query/key/value and output projections shared by all types; the type
+  nets make the types distinguishable) runs over all tokens, padded tokens masked out as keys, with
+  a residual ``out = token + attn(token)``. Feature: ``[out_own, mean]`` (``2 * width``), where
+  ``mean`` is a masked mean over all valid tokens. Which tokens query is ``mix_queries``:
+
+  - ``"own"`` (default): the agent's own token queries all tokens (the own row of the
+    self-attention), O(N) per agent; ``mean`` is the mean of the tokens. It never builds per-token
+    keys or values: ``q . (x Wk) = x . (Wk q)`` and ``sum_n a_n x_n Wv = (sum_n a_n x_n) Wv``,
+    exactly standard attention with O(N W H) instead of O(N W^2) work. The key bias is dropped (it
+    cancels in the softmax).
+  - ``"all"``: full self-attention, every token queries every token, O(N^2) per agent; ``mean`` is
+    the masked mean of ``out`` over valid tokens, computed exactly by averaging the attention rows
+    before multiplying by V (the output projection is affine, each row sums to 1). About 4-6x
+    slower on CPU (see tools/bench_networks.py).
+
+  Both are permutation-invariant within each type and have the same parameters.
   The own token's attention weights are sown as ``("intermediates", "attention")`` with shape
   ``[..., A, num_heads, 1 + T + O + K]`` in the token order above and in the *original* entity
   order of the observation (also under ``nearest_k``: entities it dropped, and padded entities,
@@ -293,9 +303,9 @@ class MixAttentionEncoder(nn.Module):
         valid = jnp.concatenate(masks, axis=1)  # [M, N]; the own token is always valid
         h = self.num_heads
         d = self.width // h
-        wq = valid.astype(x.dtype)
-        count = jnp.sum(wq, axis=1)  # >= 1
-        mean_tok = jnp.einsum("mnw,mn->mw", x, wq) / count[:, None]
+        valid_f = valid.astype(x.dtype)
+        count = jnp.sum(valid_f, axis=1)  # >= 1
+        mean_tok = jnp.einsum("mnw,mn->mw", x, valid_f) / count[:, None]
 
         w = self.width
         wq_k = self.param("query_kernel", _LECUN, (w, h, d))
@@ -327,7 +337,7 @@ class MixAttentionEncoder(nn.Module):
             own_w = weights[:, :, 0, :]
             # The mean over valid queries of the attention rows, then times V (exact: the output
             # projection is affine and every row sums to 1).
-            mean_w = jnp.einsum("mhqk,mq->mhk", weights, wq) / count[:, None, None]
+            mean_w = jnp.einsum("mhqk,mq->mhk", weights, valid_f) / count[:, None, None]
             rows = jnp.stack([own_w, mean_w], axis=1)  # [M, 2, H, N]
             attn = out(jnp.einsum("mrhk,mkhd->mrhd", rows, v).reshape(m, 2, h * d))
             own_out = x[:, 0] + attn[:, 0]

@@ -171,14 +171,16 @@ def test_output_shapes_any_leading_dims(encoder, env_obs):
         a, n_act = obs["action_mask"].shape
         net, params = build(config(encoder, counts), n_act)
         apply = _jitted(net, "apply")
-        logits, value = apply(params, obs)
-        assert logits.shape == (a, n_act) and value.shape == (a,)
-        assert np.all(np.isfinite(logits)) and np.all(np.isfinite(value))
-        assert np.all(np.asarray(logits)[~np.asarray(obs["action_mask"])] == nets.MASKED_LOGIT)
         batched = jax.tree.map(lambda x, lead=lead: jnp.broadcast_to(x, (*lead, *x.shape)), obs)
         logits_b, value_b = apply(params, batched)
         assert logits_b.shape == (*lead, a, n_act) and value_b.shape == (*lead, a)
-        _close((logits_b[(0,) * len(lead)], value_b[(0,) * len(lead)]), (logits, value))
+        if team == "pursuer":  # (A,) as well; the evader checks (B1, B2, A)
+            logits, value = apply(params, obs)
+            assert logits.shape == (a, n_act) and value.shape == (a,)
+            _close((logits_b[0], value_b[0]), (logits, value))
+        assert np.all(np.isfinite(logits_b)) and np.all(np.isfinite(value_b))
+        masked = ~np.broadcast_to(np.asarray(obs["action_mask"]), logits_b.shape)
+        assert np.all(np.asarray(logits_b)[masked] == nets.MASKED_LOGIT)
 
 
 def test_init_gives_a_near_uniform_policy(env_obs):
@@ -286,10 +288,10 @@ def test_params_transfer_across_entity_counts(encoder, obs20):
 def test_mlp_pads_and_truncates(obs20):
     net, params = build(config("mlp"))
     out = run(net, params, obs20)
-    for counts in [(15, 4, 4), (23, 6, 12), (0, 1, 0)]:
-        logits, value = run(net, params, fake_obs(1, (20,), counts))
-        assert logits.shape == (20, 39) and np.all(np.isfinite(logits))
-        assert np.all(np.isfinite(value))
+    # Fewer teammates (padded), more opponents and obstacles (truncated) than at training.
+    logits, value = run(net, params, fake_obs(1, (20,), (15, 6, 12)))
+    assert logits.shape == (20, 39) and np.all(np.isfinite(logits))
+    assert np.all(np.isfinite(value))
     # Truncation keeps the nearest: extra entities farther than all others change nothing.
     far = dict(obs20)
     for kind, mkey in KEYS:
@@ -329,6 +331,8 @@ def test_nearest_k_equals_nearest_only_obs(encoder, obs20):
     k = 2
     net, params = build(config(encoder, (k, k, k), nearest_k=k))
     _close(run(net, params, obs20), run(net, params, _nearest_only(obs20, k)))
+    if encoder != "mix":
+        return  # the selection below is shared code; checking it with one encoder is enough
     # Invalid entities are never among the kept ones: masking the nearest teammate out
     # equals removing it.
     obs = dict(obs20)
