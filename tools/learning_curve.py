@@ -1,6 +1,6 @@
 """Learning curve of a run from its TensorBoard events: a PNG plot and a Markdown table.
 
-    python tools/learning_curve.py runs/mix-20-5-8 [--out docs/learning_curve_mix_20_5_8.png]
+python tools/learning_curve.py runs/mix-20-5-8 [--out docs/learning_curve_mix_20_5_8.png]
 """
 
 from __future__ import annotations
@@ -53,6 +53,11 @@ def main() -> None:
 
     args = tyro.cli(Args)
     scalars = read_scalars(args.run)
+    # Iterations in which no arena finished carry no episode statistics (older runs logged 0).
+    finished = dict(scalars.get("episode/finished", []))
+    for tag in list(scalars):
+        if tag.startswith("episode/") and tag != "episode/finished":
+            scalars[tag] = [(s, v) for s, v in scalars[tag] if finished.get(s, 1) > 0]
     fig, ax = plt.subplots(figsize=(7, 4))
     for tag in CURVES:
         if tag in scalars:

@@ -38,6 +38,9 @@ class TrainConfig:
     """Policy/value head width."""
     nearest_k: int | None = None
     """Keep only the k nearest entities of each type (None keeps all, as the paper does)."""
+    mix_queries: str = "own"
+    """MIX attention queries: "own" (the agent's own token attends to every entity; ~6x cheaper)
+    or "all" (full self-attention over all tokens, then pooled)."""
     env_steps: int = 10_000_000
     """Training budget in env steps (one control step of one arena)."""
     num_envs: int = 64
@@ -116,6 +119,7 @@ class TrainConfig:
             hidden=self.hidden,
             nearest_k=self.nearest_k,
             mlp_counts=counts,
+            mix_queries=self.mix_queries,
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -347,7 +347,8 @@ class Trainer:
             if k.startswith("reward/"):
                 metrics[k] = jnp.mean(v)
             else:
-                metrics[k] = jnp.sum(v * done) / finished
+                # NaN when no arena finished this iteration: the logger skips it.
+                metrics[k] = jnp.where(jnp.sum(done) > 0, jnp.sum(v * done) / finished, jnp.nan)
         metrics["episode/finished"] = jnp.sum(done)
         steps = self.config.steps_per_iteration
         new_ts = TrainState(
