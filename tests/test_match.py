@@ -81,7 +81,7 @@ def test_rollout_stops_at_done_and_freezes_finished_arenas(get_compiled):
         obstacles=[[0.0, -1.2, 0.3]],
     )
     # Batched with a fresh arena: the captured one stops at step 1 while the other plays on.
-    fresh = c.reset(jax.random.key(3))
+    fresh = c.reset(3)
     both = jax.tree.map(lambda a, b: jnp.stack([a, b]), start, fresh)
     keys = jax.random.split(jax.random.key(0), 2)
     finals = jax.jit(jax.vmap(lambda key, s: rollout(env, policies, key, 50, state=s)))(keys, both)

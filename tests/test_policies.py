@@ -143,7 +143,7 @@ def test_scripted_pursuer_stops_when_no_evader_is_active(reset_obs):
 def test_single_agent_teams_without_obstacles(get_compiled):
     """Empty teammate and obstacle sets (T = 0, K = 0) work."""
     config = get_preset("2-1-1").with_counts(1, 1, 0)
-    state = get_compiled(config, "kinematic").reset(jax.random.key(0))
+    state = get_compiled(config, "kinematic").reset(0)
     for team in TEAMS:
         obs = state.obs[team]
         assert obs["teammates"].shape[1] == 0 and obs["obstacles"].shape[1] == 0
