@@ -243,8 +243,14 @@ def run_evaluate(args: EvaluateArgs) -> None:
     from pe_mjx.evaluate import evaluate
 
     report = evaluate(
-        list(args.pursuers), list(args.evaders), args.preset, args.out, args.trials,
-        args.seed, args.backend, args.record,
+        list(args.pursuers),
+        list(args.evaders),
+        args.preset,
+        args.out,
+        args.trials,
+        args.seed,
+        args.backend,
+        args.record,
     )
     print(report["paths"]["markdown"].read_text())
     print(f"wrote {args.out} in {report['meta']['seconds']:.1f} s")
