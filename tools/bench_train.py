@@ -33,10 +33,12 @@ from pe_mjx.ppo.train import Trainer
 class Args:
     out: Path = Path("docs/bench_train.json")
     quick: bool = False
-    """Only MIX and MEAN at 20-5-8 (a smoke run)."""
+    """Only 20-5-8 with the chosen encoders, no MJX and no large preset."""
     backend: str = "kinematic"
     """Env backend of the measured runs (mjx is measured for MIX at 20-5-8 in addition)."""
     repeats: int = 3
+    encoders: tuple[str, ...] = ENCODERS
+    """Encoders to measure."""
 
 
 def _time(fn, state, repeats: int) -> float:
@@ -88,7 +90,7 @@ def main() -> None:
     args = tyro.cli(Args)
     runs = []
     if args.quick:
-        plan = [("20-5-8", e, args.backend, 64, 32) for e in ("mix", "mean")]
+        plan = [("20-5-8", e, args.backend, 64, 32) for e in args.encoders]
     else:
         plan = [("20-5-8", e, args.backend, 64, 32) for e in ENCODERS]
         plan.append(("20-5-8", "mix", "mjx", 64, 32))
