@@ -87,7 +87,7 @@ def cos_sin(a: jax.Array) -> tuple[jax.Array, jax.Array]:
 
     XLA's CPU backend evaluates cos and sin as scalar library calls (about 4 ns per element) and
     re-evaluates them inside each fused pairwise or per-action loop that reads the heading; these
-    vectorised multiply-adds cost a fifth of that (the kinematic step ran ~1.3x faster with them).
+    vectorised multiply-adds cost a fifth of that (the kinematic step ran ~1.2x faster with them).
     Cody-Waite reduction to [-pi/4, pi/4], then Cephes' sinf / cosf minimax polynomials.
     """
     k = jnp.round(a * (2 / np.pi))  # quadrant
@@ -176,11 +176,6 @@ class PursuitEvasionEnv:
         self._max_speed = per_agent("max_speed")
         self._is_pursuer = np.arange(p + e) < p
         self._same_team = self._is_pursuer[:, None] == self._is_pursuer[None, :]
-        # Teammate index table: row i lists the other members of i's team (global indices).
-        self._teammates = {}
-        for team in TEAMS:
-            idx = np.arange(self.num_agents)[self.team_slices[team]]
-            self._teammates[team] = np.stack([np.delete(idx, k) for k in range(len(idx))])
         self._actions = {t: action_table(config.team(t)) for t in TEAMS}
         times = config.mask_horizon * np.arange(1, config.mask_points + 1) / config.mask_points
         self._mask_offsets = {t: arc_offsets(*self._actions[t], times) for t in TEAMS}
@@ -468,6 +463,11 @@ class PursuitEvasionEnv:
         """
         x, y = pos[:, 0], pos[:, 1]
         c, s = cos_sin(yaw)
+        # Renormalised (the polynomials' |(c, s)| is 1 within 1e-7). The division also keeps XLA
+        # from fusing, i.e. re-evaluating, the polynomials into every pairwise and per-action loop
+        # below: it materialises (c, s) once instead (1.15x faster step on CPU).
+        norm = jnp.sqrt(c**2 + s**2)
+        c, s = c / norm, s / norm
         dx, dy = x[None, :] - x[:, None], y[None, :] - y[:, None]
         obs_dx, obs_dy = obstacles[None, :, 0] - x[:, None], obstacles[None, :, 1] - y[:, None]
         hx, hy = to_heading(c[:, None], s[:, None], dx, dy)
@@ -747,8 +747,12 @@ class PursuitEvasionEnv:
             # |o|^2 - 2 o.h_k <= room_k = (r + r_k)^2 - |h_k|^2.
             room = (r + obstacles[:, 2] + MASK_MARGIN) ** 2 - (obs_hx**2 + obs_hy**2)  # [A, K]
             ax, ay = -2 * obs_hx.T[:, :, None], -2 * obs_hy.T[:, :, None]  # [K, A, 1]
-            hit = oo + ax * ox + ay * oy <= room.T[:, :, None]  # [K, A, M]; K outer: fast reduce
-            bad_move = bad_move | jnp.any(hit, axis=0)
+            room_k = room.T[:, :, None]
+            # [K, A, M], K outer for a fast reduction, in chunks of 32 obstacles: XLA splits longer
+            # reductions and then materialises the whole [K, A, M] (1.6x slower at 120 obstacles).
+            for k in range(0, self.num_obstacles, 32):
+                ks = slice(k, k + 32)
+                bad_move = bad_move | jnp.any(oo + ax[ks] * ox + ay[ks] * oy <= room_k[ks], axis=0)
             bad_stop = bad_stop | jnp.any(room >= 0, axis=1)
         n_stop, n_points = self._num_stop[team], self._mask_offsets[team].shape[1]
         bad = jnp.concatenate(

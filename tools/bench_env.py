@@ -77,7 +77,7 @@ def _time_calls(fn, carry, min_calls: int, min_seconds: float, max_seconds: floa
         elapsed = time.perf_counter() - start
         if len(times) >= min_calls and elapsed >= min_seconds:
             break
-        if len(times) >= 1 and elapsed >= max_seconds:
+        if len(times) >= 2 and elapsed >= max_seconds:
             break
     return times, carry
 
@@ -380,14 +380,20 @@ def run_worker(spec: dict[str, Any], timeout: float) -> dict[str, Any]:
     return {"status": "skipped", "reason": reason}
 
 
-def predict(history: list[dict[str, Any]], batch: int, spec: dict[str, Any]) -> dict[str, float]:
-    """Peak memory (MB) and wall time (s) of `batch`, extrapolated from smaller batches."""
+def predict(
+    history: list[dict[str, Any]], batch: int, args: argparse.Namespace
+) -> dict[str, float]:
+    """Steps per call, peak memory (MB) and wall time (s) of `batch`, from smaller batches.
+
+    Time per env-step does not grow with the batch (it usually shrinks), so scaling the last
+    measurement linearly is an upper bound. Memory grows linearly beyond the baseline: with two
+    measurements their slope is used, with one everything above the baseline is assumed to scale
+    (an overestimate, hence safe). Calls longer than `--max-call-seconds` get fewer steps.
+    """
     ok = [r for r in history if r.get("status") == "ok"]
     if not ok:
         return {}
     last = ok[-1]
-    # Memory grows linearly with the batch beyond the baseline; with two points use the slope,
-    # else assume everything above the baseline scales (an overestimate, hence safe).
     if len(ok) >= 2:
         prev = ok[-2]
         slope = max(last["peak_rss_mb"] - prev["peak_rss_mb"], 0.0) / (
@@ -396,11 +402,19 @@ def predict(history: list[dict[str, Any]], batch: int, spec: dict[str, Any]) -> 
     else:
         slope = (last["peak_rss_mb"] - last["baseline_rss_mb"]) / last["batch"]
     memory = last["peak_rss_mb"] + slope * (batch - last["batch"])
-    # Time per env-step does not grow with the batch (it usually shrinks): linear is an upper bound.
-    per_call = last["seconds_per_call_best"] * batch / last["batch"]
-    calls = 1 + max(spec["min_calls"], 1)
-    seconds = last["compile_s"] + calls * per_call
-    return {"memory_mb": memory, "seconds": seconds, "seconds_per_call": per_call}
+    per_env_step = last["seconds_per_call_best"] / (last["batch"] * last["steps_per_call"])
+    steps = args.steps
+    if per_env_step * batch * steps > args.max_call_seconds:
+        steps = max(args.min_steps, int(args.max_call_seconds / (per_env_step * batch)))
+    per_call = per_env_step * batch * steps
+    timed = max(2 * per_call, min(args.min_calls * per_call, args.max_seconds))
+    seconds = last["compile_s"] + per_call + timed  # compile, warm-up call, timed calls
+    return {
+        "steps": steps,
+        "memory_mb": memory,
+        "seconds": seconds,
+        "seconds_per_call": per_call,
+    }
 
 
 def collect(args: argparse.Namespace) -> dict[str, Any]:
@@ -410,18 +424,20 @@ def collect(args: argparse.Namespace) -> dict[str, Any]:
     for preset in args.presets:
         for batch in args.batches:
             for impl in args.impls:
+                if impl == "jaxmarl" and preset not in args.jaxmarl_presets:
+                    continue
+                hist = history.setdefault((impl, preset), [])
+                guess = predict(hist, batch, args)
                 spec = {
                     "impl": impl,
                     "preset": preset,
                     "batch": batch,
-                    "steps": args.steps,
+                    "steps": int(guess.get("steps", args.steps)),
                     "actions": args.actions,
                     "min_calls": args.min_calls,
                     "min_seconds": args.min_seconds,
                     "max_seconds": args.max_seconds,
                 }
-                hist = history.setdefault((impl, preset), [])
-                guess = predict(hist, batch, spec)
                 reason = None
                 if impl == "jaxmarl" and not have_jaxmarl:
                     reason = "jaxmarl is not installed (pip install -e '.[bench]')"
@@ -434,8 +450,8 @@ def collect(args: argparse.Namespace) -> dict[str, Any]:
                     )
                 elif guess and guess["seconds"] > args.max_seconds_total:
                     reason = (
-                        f"predicted {guess['seconds']:.0f} s (compile + {spec['min_calls'] + 1} "
-                        f"calls of {guess['seconds_per_call']:.1f} s) > "
+                        f"predicted {guess['seconds']:.0f} s (compile, then calls of "
+                        f"{guess['seconds_per_call']:.1f} s for {spec['steps']} steps) > "
                         f"{args.max_seconds_total:g} s"
                     )
                 if reason is None:
@@ -503,17 +519,18 @@ def markdown(report: dict[str, Any]) -> str:
         f"JaxMARL {m.get('jaxmarl') or 'not installed'}. Load average at start: "
         f"{', '.join(f'{x:.1f}' for x in m['load_average_at_start'])} (the machine is shared).",
         "",
-        f"Full `env.step` (observations, action masks, rewards, metrics), `jit(vmap)`, "
-        f"{s['steps_per_call']} steps per call under `lax.scan`, {s['actions']} actions; "
-        "env-steps/s is the best timed call (median in the JSON). JaxMARL is "
-        "`MPE_simple_tag_v3` with the same counts (adversaries = pursuers, good agents = evaders, "
-        "landmarks = obstacles), random actions, measured in the same run; the ratio is "
-        "ours / JaxMARL. Peak memory is the worker process's `ru_maxrss` (includes the "
-        "Python/JAX baseline). Raw numbers: `docs/bench_env.json`.",
+        "Full `env.step` (observations, action masks, rewards, metrics), `jit(vmap)` over the "
+        "batch, stepped under `lax.scan` (steps per call in the table), "
+        f"{s['actions']} valid actions; env-steps/s is the best timed call (median in the JSON). "
+        "JaxMARL is `MPE_simple_tag_v3` with the same counts (adversaries = pursuers, good "
+        "agents = evaders, landmarks = obstacles), random actions, its step (with auto-reset) "
+        f"under the same scan, measured in the same run at {', '.join(s['jaxmarl_presets'])}; "
+        "the ratio is ours / JaxMARL. Peak memory is the worker process's `ru_maxrss` "
+        "(includes the Python/JAX baseline, ~0.4 GB). Raw numbers: `docs/bench_env.json`.",
         "",
         "| preset | batch | backend | env-steps/s | agent-steps/s | JaxMARL env-steps/s "
-        "| ours / JaxMARL | compile s | peak RSS MB |",
-        "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| ours / JaxMARL | steps/call | compile s | peak RSS MB |",
+        "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     res = {(r["impl"], r["preset"], r["batch"]): r for r in report["results"]}
     skipped = []
@@ -527,7 +544,7 @@ def markdown(report: dict[str, Any]) -> str:
                 if row["status"] != "ok":
                     skipped.append(f"{impl} {preset} batch {batch}: {row['reason']}")
                     jm = _fmt(anchor["env_steps_per_s"]) if anchor.get("status") == "ok" else "-"
-                    lines.append(f"| {preset} | {batch} | {impl} | skipped | | {jm} | | | |")
+                    lines.append(f"| {preset} | {batch} | {impl} | skipped | | {jm} | | | | |")
                     continue
                 if anchor.get("status") == "ok":
                     jm = _fmt(anchor["env_steps_per_s"])
@@ -537,7 +554,7 @@ def markdown(report: dict[str, Any]) -> str:
                 lines.append(
                     f"| {preset} | {batch} | {impl} | {_fmt(row['env_steps_per_s'])} | "
                     f"{_fmt(row['agent_steps_per_s'])} | {jm} | {ratio} | "
-                    f"{row['compile_s']:.1f} | {row['peak_rss_mb']:.0f} |"
+                    f"{row['steps_per_call']} | {row['compile_s']:.1f} | {row['peak_rss_mb']:.0f} |"
                 )
             if anchor and anchor.get("status") != "ok":
                 skipped.append(f"jaxmarl {preset} batch {batch}: {anchor['reason']}")
@@ -552,19 +569,27 @@ def markdown(report: dict[str, Any]) -> str:
             "Each part jitted and `vmap`ped on its own, with its inputs precomputed as `step` "
             "hands them over (the geometry, offsets and distances, is computed once per step and "
             "shared by events, rewards, observations and masks); microseconds per batched call, "
-            f"best of {bd['reps']}; share of the kinematic full step.",
+            f"best of {bd['reps']} interleaved calls. Parts run alone lose some fusion (the "
+            "geometry alone writes all its arrays out; in a step they are fused into their "
+            "consumers), so they need not add up to the step; the rest of a step is glue (action "
+            "lookup, freezing incapacitated agents, metrics, done flags).",
             "",
-            "| part | us per call (best) | us (median) | share of kinematic step |",
-            "| --- | ---: | ---: | ---: |",
+            "| part | us per call (best) | us (median) | share of kinematic step "
+            "| share of MJX step |",
+            "| --- | ---: | ---: | ---: | ---: |",
         ]
-        full = bd["parts"]["full step (kinematic)"]["us_best"]
-        for name, row in bd["parts"].items():
-            share = (
-                ""
-                if name.startswith("physics (mjx)") or name == "full step (mjx)"
-                else (f"{100 * row['us_best'] / full:.0f}%")
+        parts = bd["parts"]
+        full = {b: parts[f"full step ({b})"]["us_best"] for b in ("kinematic", "mjx")}
+        for name, row in parts.items():
+            shares = []
+            for b in ("kinematic", "mjx"):
+                other = "mjx" if b == "kinematic" else "kinematic"
+                mine = other not in name
+                shares.append(f"{100 * row['us_best'] / full[b]:.1f}%" if mine else "")
+            lines.append(
+                f"| {name} | {row['us_best']:,.0f} | {row['us_median']:,.0f} | "
+                f"{shares[0]} | {shares[1]} |"
             )
-            lines.append(f"| {name} | {row['us_best']:,.0f} | {row['us_median']:,.0f} | {share} |")
     return "\n".join(lines) + "\n"
 
 
@@ -602,11 +627,19 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--min-calls", type=int, help="timed calls per configuration (default 5)")
     ap.add_argument("--min-seconds", type=float, default=3.0, help="timed seconds at least")
     ap.add_argument("--max-seconds", type=float, default=60.0, help="stop timing after this")
+    ap.add_argument("--max-call-seconds", type=float, default=10.0, help="fewer steps beyond")
+    ap.add_argument("--min-steps", type=int, default=5, help="fewest steps per call")
+    ap.add_argument(
+        "--jaxmarl-presets",
+        nargs="+",
+        default=["20-5-8"],
+        help="presets JaxMARL runs at (at 240-60-120 its compile ran past 300 s)",
+    )
     ap.add_argument("--max-memory-gb", type=float, default=16.0)
     ap.add_argument(
         "--max-seconds-total", type=float, default=120.0, help="skip configs predicted longer"
     )
-    ap.add_argument("--timeout", type=float, default=300.0, help="hard limit per configuration")
+    ap.add_argument("--timeout", type=float, default=180.0, help="hard limit per configuration")
     ap.add_argument("--breakdown-batch", type=int, help="batch of the breakdown (default 256)")
     ap.add_argument("--breakdown-preset", default="20-5-8")
     ap.add_argument("--no-breakdown", action="store_true")
@@ -636,7 +669,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         ap.error("--batches must all be >= 1")
     from pe_mjx.config import PRESETS as KNOWN
 
-    for preset in [*args.presets, args.breakdown_preset]:
+    for preset in [*args.presets, *args.jaxmarl_presets, args.breakdown_preset]:
         if preset not in KNOWN:
             ap.error(f"unknown preset {preset!r}; known: {', '.join(KNOWN)}")
     return args
@@ -654,6 +687,8 @@ def main(argv: list[str] | None = None) -> int:
         "batches": args.batches,
         "impls": args.impls,
         "steps_per_call": args.steps,
+        "max_call_seconds": args.max_call_seconds,
+        "jaxmarl_presets": args.jaxmarl_presets,
         "actions": args.actions,
         "min_calls": args.min_calls,
         "min_seconds": args.min_seconds,
