@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tiny_config import tiny
 
 import pe_mjx
 from pe_mjx.ppo import checkpoint
@@ -18,19 +19,7 @@ from pe_mjx.ppo.checkpoint import CheckpointError, load_policy
 from pe_mjx.ppo.config import TrainConfig
 from pe_mjx.ppo.run import resume_config, train
 
-CONFIG = TrainConfig(
-    preset="4-1-2",
-    backend="kinematic",
-    num_envs=8,
-    unroll_length=8,
-    update_epochs=1,
-    num_minibatches=2,
-    eval_every=0,
-    checkpoint_every=2,
-    width=16,
-    hidden=32,
-    env_steps=8 * 8 * 4,
-)
+CONFIG = tiny()
 
 
 def _max_diff(a, b) -> float:

@@ -12,26 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tiny_config import TINY, tiny
 
 from pe_mjx.ppo.config import TrainConfig
 from pe_mjx.ppo.train import Trainer
-
-TINY = dict(
-    preset="4-1-2",
-    backend="kinematic",
-    num_envs=8,
-    unroll_length=8,
-    update_epochs=1,
-    num_minibatches=2,
-    eval_every=0,
-    checkpoint_every=2,
-    width=16,
-    hidden=32,
-)
-
-
-def tiny(**changes) -> TrainConfig:
-    return TrainConfig(**{**TINY, "env_steps": 8 * 8 * 4, **changes})
 
 
 def params_close(a, b, atol=0.0) -> bool:
