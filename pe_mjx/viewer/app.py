@@ -294,7 +294,6 @@ class Viewer:
             self.gui_frame = gui.add_slider(
                 "Frame", min=0, max=1, step=1, initial_value=0, visible=self.mode == "replay"
             )
-        self.gui_counters = gui.add_markdown("")
         with gui.add_folder("Scene", visible=self.mode == "live") as self.gui_scene_folder:
             preset = o.preset if o.preset in PRESETS else next(iter(PRESETS))
             cfg = get_preset(preset)
@@ -328,6 +327,9 @@ class Viewer:
             self.gui_record = gui.add_button("Start recording")
             self.gui_export = gui.add_button("Export replay", visible=self.mode == "replay")
             self.gui_record_info = gui.add_markdown("")
+        # Everything that changes every frame sits below the controls, so a growing table never
+        # moves a button under the pointer.
+        self.gui_counters = gui.add_markdown("")
         self.gui_training = gui.add_markdown("", visible=self.mode == "training")
         gui.add_markdown(legend_markdown())
 

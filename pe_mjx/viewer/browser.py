@@ -248,20 +248,36 @@ class Page:
             time.sleep(interval)
 
     def element_center(self, text: str, selector: str = "button") -> tuple[float, float]:
-        """Centre (CSS pixels) of the first visible `selector` element whose text is `text`."""
+        """Centre (CSS pixels) of the first visible `selector` element whose text is `text`.
+
+        Waits until the element has stopped moving (two reads 0.1 s apart agree) and is the
+        topmost element at its centre, so a click lands on it even while the page re-renders.
+        """
         js = f"""
         (() => {{
           for (const el of document.querySelectorAll({json.dumps(selector)})) {{
             if (el.innerText.trim() !== {json.dumps(text)}) continue;
-            el.scrollIntoView({{block: "center"}});
+            el.scrollIntoView({{block: "center", behavior: "instant"}});
             const r = el.getBoundingClientRect();
-            if (r.width > 0 && r.height > 0) return [r.x + r.width / 2, r.y + r.height / 2];
+            if (r.width <= 0 || r.height <= 0) continue;
+            const x = r.x + r.width / 2, y = r.y + r.height / 2;
+            const hit = document.elementFromPoint(x, y);
+            return [x, y, hit !== null && (hit === el || el.contains(hit))];
           }}
           return null;
         }})()
         """
-        center = self.wait_for(js, timeout=30)
-        return float(center[0]), float(center[1])
+        deadline = time.monotonic() + 30.0
+        last = None
+        while True:
+            found = self.wait_for(js, timeout=max(1.0, deadline - time.monotonic()))
+            center = (float(found[0]), float(found[1]))
+            if found[2] and center == last:
+                return center
+            if time.monotonic() > deadline:
+                raise BrowserError(f"the {selector} {text!r} never held still and on top")
+            last = center
+            time.sleep(0.1)
 
     def click(self, x: float, y: float) -> None:
         """A real left click at (x, y): mouse moved, pressed and released by the browser."""

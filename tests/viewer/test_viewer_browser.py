@@ -301,6 +301,11 @@ def test_scene_controls_reset_and_apply(browser, live_viewer):
         live_viewer.gui_pursuers.value = 900
         page.click_text("Apply scene")
         wait_until(
+            lambda: any("cannot be placed" in e for e in live_viewer.errors),
+            timeout=60,
+            what="the placement error on the server",
+        )
+        wait_until(
             lambda: "cannot be placed" in page.evaluate("document.body.innerText"),
             timeout=30,
             what="the placement error in the page",
