@@ -59,6 +59,18 @@ def _gap(points: jax.Array, centres: jax.Array, radii: jax.Array | float) -> jax
     return d - radii
 
 
+def _per_agent(one: Callable[..., jax.Array], fields: tuple[str, ...]) -> Policy:
+    """A team policy from `one(*obs[f] for f in fields, action_mask) -> action` of one agent,
+    vmapped over the team's agents (scripted policies ignore the rng)."""
+    batched = jax.vmap(one)
+
+    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
+        del rng
+        return batched(*(obs[f] for f in fields), obs["action_mask"])
+
+    return policy
+
+
 def _masked_argmin(cost: jax.Array, action_mask: jax.Array) -> jax.Array:
     """argmin of ``cost [n]`` over one agent's valid actions (``action_mask`` bool [n]): int32."""
     return jnp.argmin(jnp.where(action_mask, cost, jnp.inf)).astype(jnp.int32)
@@ -161,20 +173,7 @@ def scripted_pursuer(
         cost = jnp.where(has_target, cost, stop_cost)
         return _masked_argmin(cost, action_mask)
 
-    batched = jax.vmap(one)
-
-    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
-        del rng
-        return batched(
-            obs["own"],
-            obs["teammates"],
-            obs["teammate_mask"],
-            obs["opponents"],
-            obs["opponent_mask"],
-            obs["action_mask"],
-        )
-
-    return policy
+    return _per_agent(one, ("own", "teammates", "teammate_mask", "opponents", "opponent_mask"))
 
 
 # ----------------------------------------------------------------------------- scripted evader
@@ -280,22 +279,8 @@ def scripted_evader(
         unsafe = (mate_hit | downed_hit).astype(jnp.float32) * 1e9
         return _masked_argmin(jnp.sum(potential, axis=0) + unsafe, action_mask)
 
-    batched = jax.vmap(one)
-
-    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
-        del rng
-        return batched(
-            obs["own"],
-            obs["teammates"],
-            obs["teammate_mask"],
-            obs["opponents"],
-            obs["opponent_mask"],
-            obs["obstacles"],
-            obs["obstacle_mask"],
-            obs["action_mask"],
-        )
-
-    return policy
+    fields = ("own", "teammates", "teammate_mask", "opponents", "opponent_mask")
+    return _per_agent(one, (*fields, "obstacles", "obstacle_mask"))
 
 
 # ----------------------------------------------------------------------------- random

@@ -238,6 +238,11 @@ def restore_train_state(run_dir: str | Path, trainer: Any) -> Any:
     """The full train state of the latest checkpoint, placed with the trainer's shardings."""
     run_dir = Path(run_dir)
     step = _latest_step(run_dir)
+    if not (run_dir / CHECKPOINT_DIR / str(step) / "train").is_dir():
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} holds policies only (no train state): it can be "
+            f"played and evaluated, not resumed"
+        )
     template = jax.eval_shape(trainer._init, jax.random.key(0))
     abstract = jax.eval_shape(keys_to_data, template)
     try:

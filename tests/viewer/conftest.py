@@ -64,20 +64,18 @@ class TinyRun:
 def tiny_run(tmp_path_factory):
     """Three PPO iterations (MIX pursuer learned, scripted evader) on 2-1-1 with the training view
     attached, as `pe-mjx train --view` wires it. The viewer stays up for the session."""
-    from pe_mjx.ppo.config import TrainConfig
+    from tiny_config import tiny
+
     from pe_mjx.ppo.run import train
     from pe_mjx.viewer import start_viewer
 
-    config = TrainConfig(
+    config = tiny(
         preset="2-1-1",
-        backend="kinematic",
         evader="scripted",
         env_steps=24,
         num_envs=2,
         unroll_length=4,
         num_minibatches=1,
-        update_epochs=1,
-        eval_every=0,
         checkpoint_every=1,
         width=8,
         num_heads=2,

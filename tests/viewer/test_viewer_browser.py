@@ -41,6 +41,11 @@ def click_until(page, text: str, done, what: str, tries: int = 3) -> None:
                 raise
 
 
+def wait_for_text(page, text: str, timeout: float, what: str) -> None:
+    """Waits until `text` is part of what the page shows."""
+    wait_until(lambda: text in page.evaluate("document.body.innerText"), timeout=timeout, what=what)
+
+
 def set_playing(viewer, playing: bool) -> None:
     viewer.call(lambda: viewer._set_playing(playing))
 
@@ -143,11 +148,7 @@ def test_bad_policy_path_is_an_error_in_the_page_and_the_server_keeps_running(
     try:
         live_viewer.gui_pursuer_policy.value = "/no/such/run"
         page.click_text("Load policies")
-        wait_until(
-            lambda: "no such directory" in page.evaluate("document.body.innerText"),
-            timeout=30,
-            what="the error in the page",
-        )
+        wait_for_text(page, "no such directory", timeout=30, what="the error in the page")
         assert any("/no/such/run" in e for e in live_viewer.errors)
         assert "/no/such/run" in capfd.readouterr().err
         assert live_viewer.source.run.policies["pursuer"].label == "scripted"
@@ -189,11 +190,7 @@ def test_recording_exports_open_in_the_browser(browser, live_viewer, static_serv
         viser_path, html_path = live_viewer.recordings[-2:]
         assert viser_path.suffix == ".viser" and html_path.suffix == ".html"
         assert viser_path.stat().st_size > 1000
-        wait_until(
-            lambda: viser_path.name in page.evaluate("document.body.innerText"),
-            timeout=10,
-            what="the saved paths in the page",
-        )
+        wait_for_text(page, viser_path.name, timeout=10, what="the saved paths in the page")
     finally:
         page.close()
     check_recording_pages(browser, static_server, viser_path, html_path, tmp_path)
@@ -264,19 +261,13 @@ def test_checkpoint_policies_attention_overlay_and_team_mismatch(browser, live_v
             timeout=300,
             what="the team mismatch error",
         )
-        wait_until(
-            lambda: "did not learn a evader policy" in page.evaluate("document.body.innerText"),
-            timeout=30,
-            what="the error in the page",
+        wait_for_text(
+            page, "did not learn a evader policy", timeout=30, what="the error in the page"
         )
         assert live_viewer.source.run.policies["pursuer"].label == str(tiny_run.run_dir)
         assert live_viewer.source.run.policies["evader"].label == "random"
         live_viewer.gui_att_show.value = True
-        wait_until(
-            lambda: "self" in page.evaluate("document.body.innerText"),
-            timeout=30,
-            what="the attention summary",
-        )
+        wait_for_text(page, "self", timeout=30, what="the attention summary")
         image = page.wait_for_image(
             lambda im: attention_pixels(im) > before + 100, timeout=RENDER_TIMEOUT
         )
@@ -305,11 +296,7 @@ def test_scene_controls_reset_and_apply(browser, live_viewer):
             timeout=60,
             what="the placement error on the server",
         )
-        wait_until(
-            lambda: "cannot be placed" in page.evaluate("document.body.innerText"),
-            timeout=30,
-            what="the placement error in the page",
-        )
+        wait_for_text(page, "cannot be placed", timeout=30, what="the placement error in the page")
         assert live_viewer.source.run.config.pursuer.num_agents == 4
         assert moved(page) > 50
         live_viewer.gui_pursuers.value = 3
@@ -321,11 +308,7 @@ def test_scene_controls_reset_and_apply(browser, live_viewer):
         assert (config.pursuer.num_agents, config.arena.num_obstacles) == (3, 1)
         assert config.name == "3-1-1"
         page.wait_for_image(shows_both_teams, timeout=RENDER_TIMEOUT)
-        wait_until(
-            lambda: "3-1-1" in page.evaluate("document.body.innerText"),
-            timeout=30,
-            what="the new scene's name in the page",
-        )
+        wait_for_text(page, "3-1-1", timeout=30, what="the new scene's name in the page")
         assert moved(page) > 20
     finally:
         page.close()
