@@ -787,7 +787,32 @@ class AutoResetWrapper:
     def step(self, state: State, actions: dict[str, jax.Array]) -> State:
         stepped = self.env.step(state, actions)
         rng, reset_rng = jax.random.split(stepped.info["rng"])
-        fresh = self.env.reset(reset_rng)
+        return self._restart_done(stepped, rng, self.env.reset(reset_rng))
+
+    def step_batch(self, states: State, actions: dict[str, jax.Array]) -> State:
+        """`jax.vmap(self.step)` over a batch of arenas, with the same result, but the fresh
+        arenas are only drawn on steps where some arena finished.
+
+        Under `vmap` a per-arena `lax.cond` runs both branches, so `step` pays for a full reset
+        (the placement sampler) on every step; here one batch-level `lax.cond` skips it on the
+        steps where no arena is done, which are most of them.
+        """
+        stepped = jax.vmap(self.env.step)(states, actions)
+        keys = jax.vmap(jax.random.split)(stepped.info["rng"])
+        rng, reset_rng = keys[:, 0], keys[:, 1]
+
+        def restart() -> State:
+            fresh = jax.vmap(self.env.reset)(reset_rng)
+            return jax.vmap(self._restart_done)(stepped, rng, fresh)
+
+        def keep() -> State:
+            return stepped.replace(info={**stepped.info, "rng": rng})
+
+        return jax.lax.cond(jnp.any(stepped.done > 0), restart, keep)
+
+    @staticmethod
+    def _restart_done(stepped: State, rng: jax.Array, fresh: State) -> State:
+        """`stepped` with the world, physics and observations of `fresh` if it is done."""
         done = stepped.done > 0
 
         def pick(new, old):

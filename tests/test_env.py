@@ -722,3 +722,25 @@ def test_auto_reset_draws_fresh_arena_and_keeps_finished_step(get_compiled):
         np.testing.assert_allclose(
             s.obs["pursuer"]["obstacles"][:, 0, 0], d_obstacle[:2], atol=1e-6
         )
+
+
+def test_auto_reset_step_batch_matches_vmapped_step(get_compiled):
+    """The trainer's batched auto-reset (the reset skipped when no arena is done) gives exactly
+    `vmap(step)`: none done, all done, and a mixed batch."""
+    c = get_compiled(variant_config(), "kinematic")
+    wrapped = AutoResetWrapper(c.env)
+    stop = c.actions(P_STOP, E_STOP)
+    s0 = c.place([[1.0, 0, 0], [-1.0, 0, 0]], [[0, 1.0, 0]], FAR_OBSTACLE)
+    s1 = c.step(s0, stop)  # one step in: done at its next step
+    vmapped, batched = jax.jit(jax.vmap(wrapped.step)), jax.jit(wrapped.step_batch)
+    actions = jax.tree.map(lambda a: jnp.stack([a, a]), stop)
+    for pair in ((s0, s0), (s0, s1)):
+        state = jax.tree.map(lambda a, b: jnp.stack([a, b]), *pair)
+        for _ in range(3):
+            expected, got = vmapped(state, actions), batched(state, actions)
+            assert jax.tree.structure(expected) == jax.tree.structure(got)
+            for e, g in zip(jax.tree.leaves(expected), jax.tree.leaves(got), strict=True):
+                if jax.dtypes.issubdtype(e.dtype, jax.dtypes.prng_key):
+                    e, g = jax.random.key_data(e), jax.random.key_data(g)
+                np.testing.assert_array_equal(np.asarray(e), np.asarray(g))
+            state = got

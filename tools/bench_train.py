@@ -33,12 +33,15 @@ from pe_mjx.ppo.train import Trainer
 class Args:
     out: Path = Path("docs/bench_train.json")
     quick: bool = False
-    """Only 20-5-8 with the chosen encoders, no MJX and no large preset."""
+    """Only 20-5-8 with the chosen encoders (and the reset ablation), no MJX, no large preset."""
     backend: str = "kinematic"
     """Env backend of the measured runs (mjx is measured for MIX at 20-5-8 in addition)."""
     repeats: int = 3
     encoders: tuple[str, ...] = ENCODERS
     """Encoders to measure."""
+    reset_ablation: bool = True
+    """Also time MIX with the env's reset computed on every step (`vmap(AutoResetWrapper.step)`)
+    instead of only on steps where an arena finished (`step_batch`, what the trainer does)."""
 
 
 def _time(fn, state, repeats: int) -> float:
@@ -52,8 +55,10 @@ def _time(fn, state, repeats: int) -> float:
     return best
 
 
-def measure(config: TrainConfig, repeats: int) -> dict:
+def measure(config: TrainConfig, repeats: int, eager_reset: bool = False) -> dict:
     trainer = Trainer(config)
+    if eager_reset:  # the ablation: a fresh arena drawn for every arena on every step
+        trainer.env.step_batch = jax.vmap(trainer.env.step)
     state = trainer.init()
     tic = time.perf_counter()
     iteration = jax.jit(trainer.iteration)
@@ -77,6 +82,7 @@ def measure(config: TrainConfig, repeats: int) -> dict:
         "backend": config.backend,
         "num_envs": config.num_envs,
         "unroll_length": config.unroll_length,
+        "reset": "every step" if eager_reset else "when done",
         "compile_s": compile_s,
         "env_steps_per_s": steps / t_iter,
         "agent_steps_per_s": steps * agents / t_iter,
@@ -89,13 +95,13 @@ def measure(config: TrainConfig, repeats: int) -> dict:
 def main() -> None:
     args = tyro.cli(Args)
     runs = []
-    if args.quick:
-        plan = [("20-5-8", e, args.backend, 64, 32) for e in args.encoders]
-    else:
-        plan = [("20-5-8", e, args.backend, 64, 32) for e in ENCODERS]
-        plan.append(("20-5-8", "mix", "mjx", 64, 32))
-        plan += [("240-60-120", e, args.backend, 8, 16) for e in ENCODERS]
-    for preset, encoder, backend, num_envs, unroll in plan:
+    plan = [("20-5-8", e, args.backend, 64, 32, False) for e in args.encoders]
+    if args.reset_ablation:
+        plan.append(("20-5-8", "mix", args.backend, 64, 32, True))
+    if not args.quick:
+        plan.append(("20-5-8", "mix", "mjx", 64, 32, False))
+        plan += [("240-60-120", e, args.backend, 8, 16, False) for e in args.encoders]
+    for preset, encoder, backend, num_envs, unroll, eager_reset in plan:
         config = TrainConfig(
             preset=preset,
             backend=backend,
@@ -105,7 +111,7 @@ def main() -> None:
             unroll_length=unroll,
             eval_every=0,
         )
-        result = measure(config, args.repeats)
+        result = measure(config, args.repeats, eager_reset)
         print(json.dumps(result), flush=True)
         runs.append(result)
     machine = {
@@ -126,13 +132,13 @@ def table(runs: list[dict], machine: dict) -> str:
         f"{machine['jax']}, {machine['date']}); default network (width 32, 4 heads, hidden 64), "
         "PPO 2 epochs x 4 minibatches.",
         "",
-        "| preset | encoder | backend | envs x unroll | env-steps/s | agent-steps/s | env | "
-        "forward | update | compile s |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| preset | encoder | backend | reset | envs x unroll | env-steps/s | agent-steps/s | "
+        "env | forward | update | compile s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in runs:
         lines.append(
-            f"| {r['preset']} | {r['encoder']} | {r['backend']} | {r['num_envs']}x"
+            f"| {r['preset']} | {r['encoder']} | {r['backend']} | {r['reset']} | {r['num_envs']}x"
             f"{r['unroll_length']} | {r['env_steps_per_s']:,.0f} | {r['agent_steps_per_s']:,.0f} "
             f"| {r['share_env']:.0%} | {r['share_forward']:.0%} | {r['share_update']:.0%} "
             f"| {r['compile_s']:.0f} |"

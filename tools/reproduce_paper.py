@@ -132,9 +132,10 @@ def _train(args: Args) -> None:
     from pe_mjx.ppo.run import train
 
     budget = max(1, int(ENV_STEPS * args.fraction))
+    scales = {scale for table in args.tables for scale in TABLES[table][1:]}
     for name, config in paper_runs(budget, args.backend).items():
-        if config.pursuer_encoder not in args.encoders:
-            continue
+        if config.pursuer_encoder not in args.encoders or config.preset not in scales:
+            continue  # only the co-evolutions that the chosen tables use
         out = args.runs / name
         resume = (out / checkpoint.CHECKPOINT_DIR).exists()
         if resume and checkpoint.read_meta(out)["env_steps"] >= budget:

@@ -231,7 +231,7 @@ class Trainer:
     def _rollout(self, ts: TrainState, rng: jax.Array) -> tuple[State, dict[str, Any]]:
         def step(env_state: State, key: jax.Array):
             actions, extras = self._act(ts.teams, env_state.obs, key)
-            next_state = jax.vmap(self.env.step)(env_state, actions)
+            next_state = self.env.step_batch(env_state, actions)
             next_state = self._shard_batch(next_state)
             data = {}
             for team in self.learned:
