@@ -114,8 +114,10 @@ class RewardConfig:
     """Numerator of f_p = scale / max(d, d_cap) (10 in the paper)."""
     capture_distance: float = 0.25
     """d_cap in metres: floor of the distance in f_p (caps the shaping term at scale/d_cap)."""
-    capture: float = 50.0
-    """r_s: reward to each pursuer that captures an evader this step."""
+    capture: float = 5000.0
+    """r_s: reward to each pursuer that captures an evader this step. It must beat shadowing the
+    evader at d_cap for the rest of the discounted horizon, f_p,max / (1 - gamma) = 40 / 0.01 =
+    4000 at gamma 0.99; with r_s = 50 the pursuers learned to follow, not to capture."""
     evader_alive: float = 1.0
     """r_e: per-step reward of an evader that is still active."""
 

@@ -208,8 +208,9 @@ def test_capture_by_every_pursuer_within_eps_ends_episode(small):
     assert float(s.metrics["episode/captures"]) == 1
     assert float(s.metrics["episode/success_rate"]) == 1
     # r_s to each capturing pursuer, nothing else (the teammates are 0.28 m apart: gap > d_danger)
-    np.testing.assert_allclose(s.reward["pursuer"], [50.0, 50.0], atol=1e-5)
-    assert float(s.metrics["reward/pursuer/capture"]) == pytest.approx(100.0)
+    r_s = small.env.config.reward.capture
+    np.testing.assert_allclose(s.reward["pursuer"], [r_s, r_s], atol=1e-5)
+    assert float(s.metrics["reward/pursuer/capture"]) == pytest.approx(2 * r_s)
     assert float(s.metrics["reward/pursuer/pursuit"]) == 0
     # the evader is in contact with both: f_c = r_c twice, and no alive bonus
     np.testing.assert_allclose(s.reward["evader"], [-20.0], atol=1e-5)
@@ -563,7 +564,7 @@ def test_rewards_capture_step_by_hand(get_compiled):
             "obstacle": np.zeros(2),
             "teammate": np.array([fc(0.61 - 0.2)] * 2),
             "pursuit": np.zeros(2),
-            "capture": np.array([50.0, 0.0]),
+            "capture": np.array([c.env.config.reward.capture, 0.0]),
             "opponent": np.array([0.0, fc(0.33 - 0.25)]),
         },
         "evader": {

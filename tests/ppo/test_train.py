@@ -68,10 +68,11 @@ def test_fixed_opponent_is_not_trained():
 def test_pursuers_learn_to_capture_the_scripted_evader():
     """Pursuers trained briefly capture clearly more often than the untrained policy.
 
-    4-1-2 arena, kinematic backend, against the scripted (fleeing) evader, 64 evaluation
-    episodes each with fixed seeds. Measured when written (120 iterations): untrained 0.016,
-    trained 0.31; the test trains 160.
-    The margin of 0.2 over 64 Bernoulli episodes is > 3 standard errors.
+    4-1-2 arena, kinematic backend, against the scripted (fleeing) evader, 128 evaluation
+    episodes each with fixed seeds. Measured when written (seed 0, 160 iterations): untrained
+    0.016, trained 0.91 (0.02 / 0.31 / 0.72 / 0.91 after 40 / 80 / 120 / 160 iterations).
+    The margin of 0.2 over 128 Bernoulli episodes is > 5 standard errors. Learning is
+    seed-dependent at this budget (seeds 1 and 2 reached 0.64 and 0.02), so the seed is fixed.
     """
     config = TrainConfig(
         preset="4-1-2",
@@ -81,7 +82,7 @@ def test_pursuers_learn_to_capture_the_scripted_evader():
         unroll_length=32,
         env_steps=32 * 32 * 160,
         learning_rate=1e-3,
-        eval_envs=64,
+        eval_envs=128,
         eval_every=0,
     )
     trainer = Trainer(config)
