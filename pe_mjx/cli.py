@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -201,6 +202,10 @@ def run_view(args: ViewArgs) -> None:
     )
     viewer = start_viewer(options, replay=traj, wait=False)
     print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)
+    # Ctrl-C and `kill` stop the server cleanly, also when started from a shell that left SIGINT
+    # ignored (a background job of a non-interactive shell inherits SIG_IGN).
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.default_int_handler)
     try:
         while True:
             time.sleep(3600)
