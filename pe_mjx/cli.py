@@ -202,10 +202,6 @@ def run_view(args: ViewArgs) -> None:
     )
     viewer = start_viewer(options, replay=traj, wait=False)
     print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)
-    # Ctrl-C and `kill` stop the server cleanly, also when started from a shell that left SIGINT
-    # ignored (a background job of a non-interactive shell inherits SIG_IGN).
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, signal.default_int_handler)
     try:
         while True:
             time.sleep(3600)
@@ -310,12 +306,20 @@ def main(argv: list[str] | None = None) -> None:
     }
     subcommands = {name: cls for name, (cls, _) in commands.items()}
     args = tyro.extras.subcommand_cli_from_dict(subcommands, args=argv, prog="pe-mjx")
+    # Ctrl-C and `kill` stop every command the same way (a KeyboardInterrupt: the viewer shuts
+    # its server down, training keeps its last atomic checkpoint), also when started from a shell
+    # that left SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN).
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.default_int_handler)
     for cls, fn in commands.values():
         if isinstance(args, cls):
             try:
                 fn(args)
             except ValueError as err:
                 _fail(str(err))
+            except KeyboardInterrupt:
+                print("pe-mjx: interrupted", file=sys.stderr)
+                raise SystemExit(130) from None
             return
 
 
