@@ -3,7 +3,6 @@ and resumes without redoing anything."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,9 +12,7 @@ SCRIPT = [sys.executable, str(ROOT / "tools" / "reproduce_paper.py")]
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [*SCRIPT, *args], capture_output=True, text=True, timeout=1200, env=dict(os.environ)
-    )
+    return subprocess.run([*SCRIPT, *args], capture_output=True, text=True, timeout=1200)
 
 
 def test_tiny_table_ii_and_resume(tmp_path):
