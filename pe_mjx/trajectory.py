@@ -14,14 +14,19 @@ key              shape, dtype           meaning
 ``meta_json``    [] str                 optional: a JSON object (policies, seed, ...)
 ===============  =====================  ==========================================================
 
-Files are read with ``np.load(allow_pickle=False)``: plain arrays only, never pickles. Every
-array's shape and dtype is checked on save and on load, with errors that name the file and key.
+Files are read with ``np.load(allow_pickle=False)``: plain arrays only, never pickles. On load,
+every member's ``.npy`` header (dtype, shape, size) is checked against the schema, the bounds below
+and the zip directory *before* any array is read, so a damaged or crafted file is one
+`TrajectoryError` that names the file and key, never a MemoryError. Every array's shape and dtype is
+checked again on save and on load, and so are the game's rules: an incapacitated agent never moves
+and never comes back, and its cause never changes.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -35,6 +40,33 @@ FORMAT_VERSION = 1
 NUM_CAUSES = 6  # env.ACTIVE .. env.OPPONENT
 REQUIRED_KEYS = ("format", "config_json", "poses", "active", "obstacles")
 OPTIONAL_KEYS = ("cause", "meta_json")
+
+MAX_FRAMES = 1_000_000
+"""T at most (an episode of the longest preset has a few thousand frames)."""
+MAX_ARENAS = 65_536
+"""B at most."""
+MAX_ARRAY_BYTES = 2 << 30
+"""Bytes of one array at most, as its header declares (2 GiB)."""
+MAX_JSON_CHARS = 1 << 20
+"""Characters of ``config_json`` and ``meta_json`` at most."""
+_MEMBER_RANK = {
+    "format": 0,
+    "config_json": 0,
+    "meta_json": 0,
+    "poses": 4,
+    "active": 3,
+    "obstacles": 3,
+    "cause": 3,
+}
+_MEMBER_KINDS = {
+    "format": "iu",
+    "config_json": "U",
+    "meta_json": "U",
+    "poses": "f",
+    "active": "b",
+    "obstacles": "f",
+    "cause": "iu",
+}
 
 
 class TrajectoryError(ValueError):
@@ -147,8 +179,35 @@ def _validate(
             _fail(where, "cause", f"must hold codes 0..{NUM_CAUSES - 1}")
         if np.any((cause == 0) != active):
             _fail(where, "cause", "must be 0 exactly where active is True")
+    _check_rules(where, poses, active, cause)
     if not isinstance(meta, dict):
         _fail(where, "meta", f"must be a dict, got {type(meta).__name__}")
+
+
+def _first(mask: np.ndarray) -> str:
+    """'frame t, arena b, agent i' of the first True of a [T, B, N] mask (frames from 1)."""
+    t, b, i = (int(x) for x in np.argwhere(mask)[0])
+    return f"frame {t + 1}, arena {b}, agent {i}"
+
+
+def _check_rules(where: str, poses: np.ndarray, active: np.ndarray, cause: Any) -> None:
+    """The game's rules (as `env.step` plays them): an incapacitated agent stays incapacitated,
+    keeps its pose exactly, and keeps its cause."""
+    was_down = ~active[:-1]
+    back = was_down & active[1:]
+    if np.any(back):
+        _fail(where, "active", f"breaks the rules: a downed agent is active again ({_first(back)})")
+    moved = was_down & np.any(poses[1:] != poses[:-1], axis=-1)
+    if np.any(moved):
+        _fail(where, "poses", f"break the rules: a downed agent moves ({_first(moved)})")
+    if cause is not None:
+        changed = was_down & (cause[1:] != cause[:-1])
+        if np.any(changed):
+            _fail(
+                where,
+                "cause",
+                f"breaks the rules: a downed agent's cause changes ({_first(changed)})",
+            )
 
 
 def save(path: str | Path, traj: Trajectory, overwrite: bool = False) -> Path:
@@ -187,31 +246,130 @@ def _json_scalar(where: str, key: str, x: np.ndarray) -> Any:
         _fail(where, key, f"is not valid JSON: {err}")
 
 
+def _brief(err: BaseException) -> str:
+    """A library's error message on one short line (zipfile quotes raw bytes)."""
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+@dataclasses.dataclass(frozen=True)
+class _Member:
+    """What a member's .npy header declares."""
+
+    shape: tuple[int, ...]
+    dtype: np.dtype
+
+
+def _read_header(where: str, key: str, zf: zipfile.ZipFile, info: zipfile.ZipInfo) -> _Member:
+    """Reads and checks one member's .npy header (dtype kind, rank, size against the zip entry);
+    reads no array data."""
+    fmt = np.lib.format
+    try:
+        with zf.open(info) as f:
+            version = fmt.read_magic(f)
+            if version == (1, 0):
+                shape, _, dtype = fmt.read_array_header_1_0(f)
+            elif version in ((2, 0), (3, 0)):
+                shape, _, dtype = fmt.read_array_header_2_0(f)
+            else:
+                raise ValueError(f"unsupported .npy version {version}")
+            offset = f.tell()
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, SyntaxError) as err:
+        _fail(where, key, f"is not a readable .npy array ({_brief(err)})")
+    if dtype.hasobject:
+        _fail(where, key, "holds Python objects (pickles are never loaded)")
+    if dtype.kind not in _MEMBER_KINDS[key] or dtype.subdtype is not None or dtype.names:
+        _fail(where, key, f"has dtype {dtype}, which this format does not use here")
+    if len(shape) != _MEMBER_RANK[key]:
+        _fail(where, key, f"has {len(shape)} dimensions, expected {_MEMBER_RANK[key]}")
+    if any(not isinstance(d, int) or d < 0 for d in shape):
+        _fail(where, key, f"has an invalid shape {list(shape)}")
+    if key.endswith("_json") and dtype.itemsize > 4 * MAX_JSON_CHARS:
+        _fail(where, key, f"is longer than {MAX_JSON_CHARS:,} characters")
+    nbytes = math.prod(shape) * dtype.itemsize
+    if nbytes > MAX_ARRAY_BYTES:
+        _fail(
+            where,
+            key,
+            f"declares {nbytes:,} bytes (shape {list(shape)}), more than the "
+            f"{MAX_ARRAY_BYTES:,} a trajectory array may hold: a damaged or crafted file",
+        )
+    # Deflate expands at most ~1032-fold: a larger claim is a crafted entry, refused before the
+    # read allocates what it claims.
+    limit = (
+        info.compress_size
+        if info.compress_type == zipfile.ZIP_STORED
+        else 1100 * info.compress_size
+    )
+    if info.file_size > limit + 4096:
+        _fail(
+            where,
+            key,
+            f"is damaged: its zip entry claims {info.file_size:,} bytes from "
+            f"{info.compress_size:,} compressed",
+        )
+    if info.file_size != offset + nbytes:
+        _fail(
+            where,
+            key,
+            f"is damaged: its header declares {nbytes:,} bytes of data but the zip entry holds "
+            f"{max(info.file_size - offset, 0):,}",
+        )
+    return _Member(shape=tuple(shape), dtype=dtype)
+
+
+def _read_headers(where: str, zf: zipfile.ZipFile) -> dict[str, _Member]:
+    """Every member's header, checked against the schema and against each other."""
+    members: dict[str, _Member] = {}
+    infos: dict[str, zipfile.ZipInfo] = {}
+    for info in zf.infolist():
+        key = info.filename.removesuffix(".npy")
+        if key in infos or key not in _MEMBER_RANK:
+            if key in infos:
+                raise TrajectoryError(f"{where}: key {key!r} appears twice")
+            known = sorted(_MEMBER_RANK)
+            raise TrajectoryError(f"{where}: unknown keys [{key!r}] (known: {known})")
+        infos[key] = info
+    missing = [key for key in REQUIRED_KEYS if key not in infos]
+    if missing:
+        raise TrajectoryError(f"{where}: missing keys {missing} (has {sorted(infos)})")
+    for key, info in infos.items():
+        members[key] = _read_header(where, key, zf, info)
+    t, b = members["poses"].shape[:2]
+    if not 1 <= t <= MAX_FRAMES:
+        _fail(where, "poses", f"holds {t} frames; expected 1..{MAX_FRAMES:,}")
+    if not 1 <= b <= MAX_ARENAS:
+        _fail(where, "poses", f"holds {b} arenas; expected 1..{MAX_ARENAS:,}")
+    return members
+
+
 def load(path: str | Path) -> Trajectory:
-    """Reads and validates a trajectory file; every problem raises TrajectoryError."""
+    """Reads and validates a trajectory file; every problem raises TrajectoryError.
+
+    The headers of all members are checked (schema, bounds, sizes) before any array is read; the
+    arrays are then checked against the scene's config and against the game's rules.
+    """
     path = Path(path)
     where = str(path)
-    if not path.is_file():
+    if not path.exists():
         raise TrajectoryError(f"{where}: no such file")
+    if not path.is_file():
+        raise TrajectoryError(f"{where}: not a file")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
-        raise TrajectoryError(f"{where}: not a readable .npz file ({err})") from None
-    missing = [key for key in REQUIRED_KEYS if key not in arrays]
-    if missing:
-        raise TrajectoryError(f"{where}: missing keys {missing} (has {sorted(arrays)})")
-    unknown = sorted(set(arrays) - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS))
-    if unknown:
-        raise TrajectoryError(f"{where}: unknown keys {unknown}")
+        with zipfile.ZipFile(path) as zf:
+            members = _read_headers(where, zf)
+    except (OSError, zipfile.BadZipFile, EOFError, ValueError) as err:
+        if isinstance(err, TrajectoryError):
+            raise
+        raise TrajectoryError(f"{where}: not a readable .npz file ({_brief(err)})") from None
+    small = {key: m for key, m in members.items() if key in ("format", "config_json", "meta_json")}
+    arrays = _read_arrays(where, path, small)
     version = arrays["format"]
-    if version.shape != () or not np.issubdtype(version.dtype, np.integer):
-        _fail(where, "format", "must be an integer scalar")
     if int(version) != FORMAT_VERSION:
         _fail(where, "format", f"is {int(version)}; this pe-mjx reads {FORMAT_VERSION}")
     try:
         config = EnvConfig.from_dict(_json_scalar(where, "config_json", arrays["config_json"]))
-    except ValueError as err:
+    except (ValueError, TypeError) as err:
         if isinstance(err, TrajectoryError):
             raise
         raise TrajectoryError(f"{where}: config_json: {err}") from None
@@ -220,6 +378,15 @@ def load(path: str | Path) -> Trajectory:
         meta = _json_scalar(where, "meta_json", arrays["meta_json"])
         if not isinstance(meta, dict):
             _fail(where, "meta_json", "must hold a JSON object")
+    # The config fixes N and K: check the declared shapes before reading the big arrays.
+    n, k = config.num_agents, config.arena.num_obstacles
+    t, b = members["poses"].shape[:2]
+    expected = {"poses": (t, b, n, 3), "active": (t, b, n), "obstacles": (b, k, 3)}
+    expected["cause"] = (t, b, n)
+    for key, shape in expected.items():
+        if key in members and members[key].shape != shape:
+            _fail(where, key, f"has shape {list(members[key].shape)}, expected {list(shape)}")
+    arrays.update(_read_arrays(where, path, {k: m for k, m in members.items() if k in expected}))
     cause = arrays.get("cause")
     _validate(where, config, arrays["poses"], arrays["active"], arrays["obstacles"], cause, meta)
     return Trajectory(
@@ -230,6 +397,22 @@ def load(path: str | Path) -> Trajectory:
         cause=None if cause is None else cause.astype(np.int32),
         meta=meta,
     )
+
+
+def _read_arrays(where: str, path: Path, members: dict[str, _Member]) -> dict[str, np.ndarray]:
+    """Reads the given (already checked) members; a read error is a TrajectoryError."""
+    out = {}
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            for key, member in members.items():
+                out[key] = data[key]
+                if out[key].shape != member.shape or out[key].dtype != member.dtype:
+                    _fail(where, key, "changed while it was read")
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
+        if isinstance(err, TrajectoryError):
+            raise
+        raise TrajectoryError(f"{where}: not a readable .npz file ({_brief(err)})") from None
+    return out
 
 
 def from_episodes(

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import io
+import zipfile
 
 import numpy as np
 import pytest
@@ -27,6 +29,7 @@ def make(frames: int = 5, arenas: int = 2, cause: bool = True) -> Trajectory:
     poses = rng.uniform(-1, 1, (frames, arenas, 3, 3)).astype(np.float32)
     active = np.ones((frames, arenas, 3), bool)
     active[3:, 0, [0, 2]] = False
+    poses[3:, 0, [0, 2]] = poses[min(3, frames - 1), 0, [0, 2]]  # the downed stay where they fell
     causes = np.where(active, 0, CAPTURE).astype(np.int32)
     obstacles = np.asarray([[[0.5, 0.5, 0.3]]] * arenas, np.float32)
     return Trajectory(
@@ -195,3 +198,109 @@ def test_recorded_episodes_round_trip(tmp_path):
     np.testing.assert_array_equal(back.cause[-1], np.asarray(final.world.cause))
     np.testing.assert_array_equal(back.obstacles, np.asarray(final.world.obstacles))
     np.testing.assert_allclose(back.poses[-1, :, :, :2], np.asarray(final.world.pos), atol=1e-6)
+
+
+def npy_bytes(dtype: str, shape: tuple[int, ...], data: bytes = b"") -> bytes:
+    """A .npy member whose header declares `dtype` and `shape`, followed by `data`."""
+    header = repr({"descr": dtype, "fortran_order": False, "shape": shape}).encode()
+    header += b" " * (63 - (len(header) + 10) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header + data
+
+
+def write_npz(path, members: dict[str, bytes]) -> None:
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        for key, payload in members.items():
+            zf.writestr(f"{key}.npy", payload)
+
+
+def npz_members(traj: Trajectory) -> dict[str, bytes]:
+    out = {}
+    for key, array in raw(traj).items():
+        buf = io.BytesIO()
+        np.save(buf, array, allow_pickle=False)
+        out[key] = buf.getvalue()
+    return out
+
+
+def test_a_header_claiming_terabytes_is_refused_before_any_allocation(tmp_path):
+    """The 12 KB file whose poses header claims 3.27 TiB: one clear error, no MemoryError."""
+    members = npz_members(make())
+    members["poses"] = npy_bytes("<f4", (1_000_000, 100_000, 3, 3), b"\0" * 12_000)
+    write_npz(tmp_path / "huge.npz", members)
+    assert (tmp_path / "huge.npz").stat().st_size < 20_000
+    with pytest.raises(TrajectoryError, match=r"huge\.npz: poses declares 3,600,000,000,000 bytes"):
+        load(tmp_path / "huge.npz")
+
+
+@pytest.mark.parametrize(
+    ("key", "payload", "message"),
+    [
+        ("poses", npy_bytes("<f4", (5, 2, 3, 3), b"\0" * 16), "poses is damaged: its header"),
+        ("active", npy_bytes("<f4", (5, 2, 3), b"\0" * 120), "active has dtype float32"),
+        ("poses", npy_bytes("<f4", (5, 2, 3), b"\0" * 120), "poses has 3 dimensions"),
+        ("obstacles", npy_bytes("|O", (2, 1, 3)), "obstacles holds Python objects"),
+        ("cause", npy_bytes("<i4", (5, 2, 4), b"\0" * 160), r"cause has shape \[5, 2, 4\]"),
+        ("config_json", npy_bytes("<U2000000", ()), "config_json is longer than"),
+        ("format", b"\x93NUMPY\x09\x00garbage", "format is not a readable .npy array"),
+        ("poses", npy_bytes("<f4", (0, 2, 3, 3)), "poses holds 0 frames"),
+    ],
+)
+def test_damaged_members_are_one_clear_error(tmp_path, key, payload, message):
+    members = npz_members(make())
+    members[key] = payload
+    write_npz(tmp_path / "bad.npz", members)
+    with pytest.raises(TrajectoryError, match=message):
+        load(tmp_path / "bad.npz")
+
+
+def test_a_forged_zip_entry_size_is_refused(tmp_path):
+    """The zip directory claims far more than deflate can expand to: refused before reading."""
+    write_npz(tmp_path / "t.npz", npz_members(make()))
+    data = bytearray((tmp_path / "t.npz").read_bytes())
+    pos = data.find(b"PK\x01\x02")  # the central directory's records
+    while data[pos + 46 : pos + 46 + int.from_bytes(data[pos + 28 : pos + 30], "little")] != (
+        b"poses.npy"
+    ):
+        pos = data.find(b"PK\x01\x02", pos + 4)
+    data[pos + 24 : pos + 28] = (2**31).to_bytes(4, "little")  # its uncompressed size
+    (tmp_path / "t.npz").write_bytes(bytes(data))
+    with pytest.raises(TrajectoryError, match=r"t\.npz: poses is damaged: its zip entry claims"):
+        load(tmp_path / "t.npz")
+
+
+def test_truncated_file_is_one_clear_error(tmp_path):
+    path = save(tmp_path / "t.npz", make())
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(TrajectoryError, match=r"t\.npz: not a readable \.npz"):
+        load(path)
+
+
+def broken_rule(rule: str) -> dict[str, np.ndarray]:
+    traj = make()
+    poses, active, cause = traj.poses.copy(), traj.active.copy(), traj.cause.copy()
+    if rule == "moves":
+        poses[4, 0, 2, 0] += 0.01  # evader 2 of arena 0 is down since frame 3
+    elif rule == "returns":
+        active[4, 0, 0] = True
+        cause[4, 0, 0] = 0
+    else:
+        cause[4, 0, 0] = 2
+    return {"poses": poses, "active": active, "cause": cause}
+
+
+@pytest.mark.parametrize(
+    ("rule", "message"),
+    [
+        ("moves", r"poses break the rules: a downed agent moves \(frame 4, arena 0, agent 2\)"),
+        ("returns", r"active breaks the rules: a downed agent is active again \(frame 4"),
+        ("cause", r"cause breaks the rules: a downed agent's cause changes \(frame 4"),
+    ],
+)
+def test_replays_that_break_the_rules_are_refused(tmp_path, rule, message):
+    changes = broken_rule(rule)
+    with pytest.raises(TrajectoryError, match=message):
+        dataclasses.replace(make(), **changes)
+    arrays = raw(make()) | changes
+    np.savez(tmp_path / "rule.npz", **arrays)
+    with pytest.raises(TrajectoryError, match=r"rule\.npz: " + message):
+        load(tmp_path / "rule.npz")

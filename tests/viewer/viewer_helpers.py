@@ -61,6 +61,8 @@ def synthetic_trajectory(frames: int = 40, arenas: int = 2) -> Trajectory:
     cause[late:, 0, [0, 4]] = CAPTURE
     active[late:, 1, 1] = False
     cause[late:, 1, 1] = WALL
+    poses[late:, 0, [0, 4]] = poses[late, 0, [0, 4]]  # the downed stay where they fell
+    poses[late:, 1, 1] = poses[late, 1, 1]
     obstacles = np.tile(
         np.asarray([[1.6, 0.0, 0.35], [-1.5, -0.6, 0.3]], np.float32), (arenas, 1, 1)
     )
