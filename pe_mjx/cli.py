@@ -139,20 +139,84 @@ class ViewArgs:
     steps: int = 200
     """Live control steps recorded by --export."""
     host: str = "127.0.0.1"
-    """Address to bind; the default serves this machine only."""
+    """Address to bind; the default serves this machine only (any other prints a warning: every
+    browser that reaches the page can control the viewer)."""
     port: int = 8080
     """Port (the next free one is used if it is taken)."""
     record_dir: Path = Path("recordings")
     """Where the GUI's recordings are written."""
+    policy_roots: tuple[Path, ...] | None = None
+    """Directories under which policy runs typed into the page may be opened (default: the
+    working directory and the shipped assets/policies). --pursuers/--evaders are always allowed."""
+
+
+def _check_view_policies(args: ViewArgs) -> None:
+    """Loads --pursuers and --evaders once for the preset, so that a bad or damaged one is one
+    error line before the server starts."""
+    from pe_mjx.config import get_preset
+    from pe_mjx.viewer.live import PolicyError, load_team_policy
+
+    config = get_preset(args.preset)
+    for flag, spec, team in (
+        ("--pursuers", args.pursuers, "pursuer"),
+        ("--evaders", args.evaders, "evader"),
+    ):
+        try:
+            load_team_policy(spec, config, team)
+        except Exception as err:  # a damaged checkpoint too: one line, never a traceback
+            text = " ".join(str(err).split())  # library messages may span many lines
+            text = text if len(text) <= 300 else text[:297] + "..."
+            if not isinstance(err, PolicyError):
+                text = f"cannot load the policy {spec!r} ({type(err).__name__}: {text})"
+            _fail(f"{flag}: {text}")
+
+
+def _check_view_args(args: ViewArgs) -> None:
+    import math
+
+    from pe_mjx.viewer.guard import MAX_ARENAS, SEED_MAX, check_address
+
+    if args.arenas is not None and not 1 <= args.arenas <= MAX_ARENAS:
+        _fail(f"--arenas must be in 1..{MAX_ARENAS}, got {args.arenas}")
+    if args.backend not in ("mjx", "kinematic"):
+        _fail(f"--backend: unknown backend {args.backend!r}; expected mjx or kinematic")
+    if not 0 <= args.seed <= SEED_MAX:
+        _fail(f"--seed must be in 0..{SEED_MAX}, got {args.seed}")
+    if not math.isfinite(args.speed) or args.speed < 0:
+        _fail(f"--speed must be a finite number >= 0, got {args.speed}")
+    if args.steps < 1:
+        _fail(f"--steps must be >= 1, got {args.steps}")
+    for root in args.policy_roots or ():
+        if not root.is_dir():
+            _fail(f"--policy-roots: {root} is not a directory")
+    if args.export is not None:
+        for suffix in (".viser", ".html"):
+            if args.export.with_suffix(suffix).exists():
+                _fail(f"--export: {args.export.with_suffix(suffix)} exists; refusing to overwrite")
+        _check_writable_dir("--export", args.export.parent)
+        return
+    _check_writable_dir("--record-dir", args.record_dir)
+    try:
+        check_address(args.host, args.port)  # the viewer warns about a non-local address
+    except ValueError as err:
+        _fail(str(err))
+
+
+def _check_writable_dir(flag: str, directory: Path) -> None:
+    """`directory` is, or can be created as, a writable directory."""
+    existing = directory
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        _fail(f"{flag}: {existing} is not a directory")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        _fail(f"{flag}: {existing} is not writable")
 
 
 def run_view(args: ViewArgs) -> None:
     from pe_mjx.trajectory import TrajectoryError
 
-    if args.arenas is not None and args.arenas < 1:
-        _fail(f"--arenas must be >= 1, got {args.arenas}")
-    if args.backend not in ("mjx", "kinematic"):
-        _fail(f"unknown backend {args.backend!r}; expected mjx or kinematic")
+    _check_view_args(args)
     traj = None
     if args.replay is not None:
         from pe_mjx.trajectory import load as load_trajectory
@@ -163,6 +227,7 @@ def run_view(args: ViewArgs) -> None:
             _fail(str(err))
     else:
         _check_preset(args.preset)
+        _check_view_policies(args)
     if args.export is not None:
         from pe_mjx.viewer.replay import export_live, export_trajectory
 
@@ -199,6 +264,7 @@ def run_view(args: ViewArgs) -> None:
         host=args.host,
         port=args.port,
         record_dir=args.record_dir,
+        policy_roots=args.policy_roots,
     )
     viewer = start_viewer(options, replay=traj, wait=False)
     print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)

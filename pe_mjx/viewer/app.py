@@ -6,6 +6,10 @@ runs the queued commands, advances the source at the chosen speed and pushes eac
 browser inside one ``server.atomic()`` block. An error in a command (a bad checkpoint path, a
 scene that cannot be placed) is shown in the GUI and printed on stderr; the loop keeps going.
 Browser tabs come and go (viser replays the scene to a new tab); the server never stops for them.
+
+A browser is not trusted: `pe_mjx.viewer.guard` checks every GUI value it sends (type, finite,
+bounds, options) before viser applies it, refuses and shows anything else, and limits the policy
+paths typed into the page to run directories under a few roots.
 """
 
 from __future__ import annotations
@@ -25,7 +29,17 @@ import numpy as np
 
 from pe_mjx.config import PRESETS, TEAMS, EnvConfig, get_preset
 from pe_mjx.env import BACKENDS, CAUSE_NAMES
+from pe_mjx.policies import POLICIES
 from pe_mjx.trajectory import Trajectory
+from pe_mjx.viewer.guard import (
+    MAX_ARENAS,
+    MAX_COUNT,
+    SEED_MAX,
+    GuiGuard,
+    PolicyAccess,
+    Rule,
+    check_address,
+)
 from pe_mjx.viewer.live import (
     LiveRun,
     PolicyError,
@@ -49,6 +63,8 @@ MAX_SPEED = 120.0
 """Top of the speed slider, in env steps per second."""
 COUNTER_PERIOD = 0.25
 """Seconds between counter-table refreshes."""
+MAX_ERRORS = 1000
+"""Error messages kept in `Viewer.errors` (a hostile client may send many bad values)."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -75,6 +91,9 @@ class ViewerOptions:
     port: int = 8080
     record_dir: Path = Path("recordings")
     verbose: bool = True
+    policy_roots: tuple[Path, ...] | None = None
+    """Directories under which the GUI may open policy runs (None: the working directory and the
+    shipped policies under assets/policies). The `pursuers`/`evaders` given here are allowed too."""
 
 
 class LiveSource:
@@ -169,13 +188,27 @@ class Viewer:
             get_preset(options.preset)  # fail early, with the list of presets
         if options.backend not in BACKENDS:
             raise ValueError(f"unknown backend {options.backend!r}; expected one of {BACKENDS}")
-        if options.arenas < 1:
-            raise ValueError(f"arenas must be >= 1, got {options.arenas}")
+        if not 1 <= options.arenas <= MAX_ARENAS:
+            raise ValueError(f"arenas must be in 1..{MAX_ARENAS}, got {options.arenas}")
+        if not 0 <= options.seed <= SEED_MAX:
+            raise ValueError(f"seed must be in 0..{SEED_MAX}, got {options.seed}")
+        if not check_address(options.host, options.port):
+            print(
+                f"pe-mjx view: warning: --host {options.host} serves the viewer to other "
+                "machines; anyone who can reach it can control it (there is no login)",
+                file=sys.stderr,
+                flush=True,
+            )
         self.options = options
+        access = PolicyAccess.default(options.policy_roots)
+        self.policy_access = access.allowing(
+            *(p for p in (options.pursuers, options.evaders) if p.strip() not in ("", *POLICIES))
+        )
         self.mode = "replay" if replay is not None else ("training" if training else "live")
         self.server = viser.ViserServer(
             host=options.host, port=options.port, label="pe-mjx", verbose=False
         )
+        self.guard = GuiGuard(self.server, self._reject)
         configure_lighting(self.server)
         self.source: LiveSource | ReplaySource | None = None
         self.scene: ArenaScene | None = None
@@ -255,16 +288,24 @@ class Viewer:
 
     # ------------------------------------------------------------------ errors and status
 
-    def _report(self, message: str) -> None:
+    def _report(self, message: str, notify: bool = True) -> None:
         self.errors.append(message)
+        del self.errors[:-MAX_ERRORS]
         print(f"pe-mjx view: error: {message}", file=sys.stderr, flush=True)
         self.gui_error.content = f"**Error:** {message}"
         self.gui_error.visible = True
+        if not notify:
+            return
         for client in self.server.get_clients().values():
             with contextlib.suppress(Exception):
                 client.add_notification(
                     "pe-mjx error", message, color="red", auto_close_seconds=15.0
                 )
+
+    def _reject(self, message: str) -> None:
+        """A GUI value refused by the guard (viser's event loop): shown, never applied. No
+        notification pop-ups: a flood of forged messages must not flood every page."""
+        self._report(message, notify=False)
 
     def _clear_error(self) -> None:
         self.gui_error.visible = False
@@ -299,17 +340,17 @@ class Viewer:
             cfg = get_preset(preset)
             self.gui_preset = gui.add_dropdown("Preset", tuple(PRESETS), initial_value=preset)
             self.gui_pursuers = gui.add_number(
-                "Pursuers", cfg.pursuer.num_agents, min=1, max=1000, step=1
+                "Pursuers", cfg.pursuer.num_agents, min=1, max=MAX_COUNT, step=1
             )
             self.gui_evaders = gui.add_number(
-                "Evaders", cfg.evader.num_agents, min=1, max=1000, step=1
+                "Evaders", cfg.evader.num_agents, min=1, max=MAX_COUNT, step=1
             )
             self.gui_obstacles = gui.add_number(
-                "Obstacles", cfg.arena.num_obstacles, min=0, max=1000, step=1
+                "Obstacles", cfg.arena.num_obstacles, min=0, max=MAX_COUNT, step=1
             )
-            self.gui_arenas = gui.add_number("Arenas", o.arenas, min=1, max=64, step=1)
+            self.gui_arenas = gui.add_number("Arenas", o.arenas, min=1, max=MAX_ARENAS, step=1)
             self.gui_backend = gui.add_dropdown("Backend", BACKENDS, initial_value=o.backend)
-            self.gui_seed = gui.add_number("Seed", o.seed, step=1)
+            self.gui_seed = gui.add_number("Seed", o.seed, min=0, max=SEED_MAX, step=1)
             self.gui_reset = gui.add_button("Reset")
             self.gui_apply = gui.add_button("Apply scene")
         with gui.add_folder("Policies", visible=self.mode == "live") as self.gui_policy_folder:
@@ -320,8 +361,8 @@ class Viewer:
         with gui.add_folder("Attention", visible=self.mode != "replay") as self.gui_att_folder:
             self.gui_att_show = gui.add_checkbox("Show attention", initial_value=False)
             self.gui_att_team = gui.add_dropdown("Team", TEAMS, initial_value="pursuer")
-            self.gui_att_arena = gui.add_number("Arena", 0, min=0, step=1)
-            self.gui_att_agent = gui.add_number("Agent", 0, min=0, step=1)
+            self.gui_att_arena = gui.add_number("Arena", 0, min=0, max=MAX_ARENAS - 1, step=1)
+            self.gui_att_agent = gui.add_number("Agent", 0, min=0, max=MAX_COUNT - 1, step=1)
             self.gui_att_info = gui.add_markdown("")
         with gui.add_folder("Record"):
             self.gui_record = gui.add_button("Start recording")
@@ -332,6 +373,39 @@ class Viewer:
         self.gui_counters = gui.add_markdown("")
         self.gui_training = gui.add_markdown("", visible=self.mode == "training")
         gui.add_markdown(legend_markdown())
+        # What a browser may change, and how; every other element is read-only to it.
+        click, flag, whole = Rule("button"), Rule("bool"), Rule("int")
+        self.guard.add_all(
+            [
+                (self.gui_play, click),
+                (self.gui_pause, click),
+                (self.gui_step, click),
+                (self.gui_speed, Rule("float")),
+                (self.gui_max_speed, flag),
+                (self.gui_trails, flag),
+                (self.gui_loop, flag),
+                (self.gui_frame, whole),
+                (self.gui_preset, Rule("choice")),
+                (self.gui_pursuers, whole),
+                (self.gui_evaders, whole),
+                (self.gui_obstacles, whole),
+                (self.gui_arenas, whole),
+                (self.gui_backend, Rule("choice")),
+                (self.gui_seed, whole),
+                (self.gui_reset, click),
+                (self.gui_apply, click),
+                (self.gui_pursuer_policy, Rule("text")),
+                (self.gui_evader_policy, Rule("text")),
+                (self.gui_deterministic, flag),
+                (self.gui_load, click),
+                (self.gui_att_show, flag),
+                (self.gui_att_team, Rule("choice")),
+                (self.gui_att_arena, whole),
+                (self.gui_att_agent, whole),
+                (self.gui_record, click),
+                (self.gui_export, click),
+            ]
+        )
 
         @self.gui_play.on_click
         def _(_: Any) -> None:
@@ -457,13 +531,15 @@ class Viewer:
             f"seed {run.seed}; {pols}"
         )
 
-    def _policies(self, config: EnvConfig, specs: dict[str, str]) -> dict[str, TeamPolicy]:
+    def _policies(
+        self, config: EnvConfig, specs: dict[str, str], access: PolicyAccess | None
+    ) -> dict[str, TeamPolicy]:
         """Each team's policy; a team whose policy fails falls back to scripted (error shown)."""
         out = {}
         deterministic = bool(self.gui_deterministic.value)
         for team in TEAMS:
             try:
-                out[team] = load_team_policy(specs[team], config, team, deterministic)
+                out[team] = load_team_policy(specs[team], config, team, deterministic, access)
             except PolicyError as err:
                 self._report(f"{err} (the {team}s play scripted instead)")
                 out[team] = load_team_policy("scripted", config, team)
@@ -473,7 +549,7 @@ class Viewer:
         o = self.options
         config = get_preset(o.preset)
         self._status(f"compiling `{config.name}` ({o.backend})...")
-        policies = self._policies(config, {"pursuer": o.pursuers, "evader": o.evaders})
+        policies = self._policies(config, {"pursuer": o.pursuers, "evader": o.evaders}, None)
         run = LiveRun(config, policies, o.arenas, o.backend, o.seed)
         self._set_source(LiveSource(run, o.trail_length))
         self._status(self._live_status())
@@ -500,7 +576,7 @@ class Viewer:
             "evader": str(self.gui_evader_policy.value),
         }
         self._status(f"compiling `{config.name}` ({backend})...")
-        policies = self._policies(config, specs)
+        policies = self._policies(config, specs, self.policy_access)
         run = LiveRun(config, policies, arenas, backend, seed)
         self._set_source(LiveSource(run, self.options.trail_length))
         self._clear_error()
@@ -522,7 +598,9 @@ class Viewer:
             if specs[team].strip() == current.label and same_mode:
                 continue  # unchanged: no reload, no recompilation
             try:
-                policy = load_team_policy(specs[team], run.config, team, deterministic)
+                policy = load_team_policy(
+                    specs[team], run.config, team, deterministic, self.policy_access
+                )
             except PolicyError as err:
                 self._report(f"{err} (the {team}s keep `{run.policies[team].label}`)")
                 failed = True
@@ -667,7 +745,7 @@ class Viewer:
                     trainer.network_configs[team].encoder,
                 )
             else:
-                label = str(getattr(trainer.config, team))
+                label = str(trainer.config.team(team).policy)
                 policies[team] = fixed_policy(label, trainer.fixed[team])
         backend = trainer.config.backend
         self._status(f"compiling `{config.name}` ({backend})...")
@@ -730,7 +808,7 @@ class Viewer:
             if isinstance(source, ReplaySource):
                 source.seek(0)
             else:
-                source.reset(source.run.seed + 1)
+                source.reset((source.run.seed + 1) % (SEED_MAX + 1))
                 self.gui_seed.value = source.run.seed
                 self._status(self._live_status())
         else:
@@ -753,6 +831,7 @@ class Viewer:
             return False
         finally:
             if self.source is None and self.mode != "training" and self.errors:
+                self._status("**failed to start** (see the error)")
                 self._ready.set()  # startup failed; wait_ready raises
 
     def _loop(self) -> None:

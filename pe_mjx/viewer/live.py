@@ -25,6 +25,7 @@ import numpy as np
 from pe_mjx.config import TEAMS, EnvConfig
 from pe_mjx.env import CAPTURE, CAUSE_NAMES, PursuitEvasionEnv, State
 from pe_mjx.policies import POLICIES, make_policy
+from pe_mjx.viewer.guard import PolicyAccess
 from pe_mjx.viewer.scene import AttentionOverlay, Frame
 
 ApplyFn = Callable[[Any, dict[str, jax.Array], jax.Array], tuple[jax.Array, jax.Array | None]]
@@ -129,9 +130,17 @@ def check_fits(policy: TeamPolicy, config: EnvConfig, team: str) -> None:
 
 
 def load_team_policy(
-    spec: str, config: EnvConfig, team: str, deterministic: bool = False
+    spec: str,
+    config: EnvConfig,
+    team: str,
+    deterministic: bool = False,
+    access: PolicyAccess | None = None,
 ) -> TeamPolicy:
     """A team policy from a name ("scripted", "random") or a run directory; checked to fit.
+
+    Args:
+      access: where run directories may be opened from (paths typed into the GUI); None: anywhere
+        (the command line). A path outside gets one message, whether or not it exists.
 
     Raises:
       PolicyError: unknown name, missing or unreadable checkpoint, a run that did not learn this
@@ -147,6 +156,11 @@ def load_team_policy(
 
         if not spec:
             raise PolicyError(f"no {team} policy given")
+        if access is not None and not access.allows(spec):
+            raise PolicyError(
+                f"{team} policy {spec!r}: not {' or '.join(POLICIES)} and not a run directory "
+                f"under {access.describe()} (`pe-mjx view --policy-roots` allows others)"
+            )
         path = Path(spec).expanduser()
         if not path.exists():
             names = ", ".join(POLICIES)

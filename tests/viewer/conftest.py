@@ -30,7 +30,8 @@ def browser():
 
 @pytest.fixture(scope="session")
 def live_viewer(tmp_path_factory):
-    """Scripted pursuers against a random evader, two arenas, kinematic backend, 15 steps/s."""
+    """Scripted pursuers against a random evader, two arenas, kinematic backend, 15 steps/s; the
+    page may open policy runs under the session's temporary directory (the tiny run's)."""
     from pe_mjx.viewer import start_viewer
 
     viewer = start_viewer(
@@ -43,6 +44,7 @@ def live_viewer(tmp_path_factory):
         speed=15.0,
         verbose=False,
         record_dir=tmp_path_factory.mktemp("recordings"),
+        policy_roots=(tmp_path_factory.getbasetemp(),),
     )
     yield viewer
     viewer.stop()

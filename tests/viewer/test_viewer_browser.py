@@ -15,7 +15,14 @@ import numpy as np
 import pytest
 import viser
 from PIL import Image
-from viewer_helpers import robots_mask, shows_both_teams, team_counts, wait_until
+from viewer_helpers import (
+    ForgedClient,
+    gui_uuid,
+    robots_mask,
+    shows_both_teams,
+    team_counts,
+    wait_until,
+)
 
 from pe_mjx.viewer import start_viewer
 
@@ -140,16 +147,24 @@ def test_two_tabs_then_one_closes_and_one_reloads(browser, live_viewer):
     third.close()
 
 
-def test_bad_policy_path_is_an_error_in_the_page_and_the_server_keeps_running(
-    browser, live_viewer, capfd
-):
+def test_policy_paths_outside_the_roots_are_refused_alike_in_the_page(browser, live_viewer, capfd):
+    """A missing path, an existing system directory and a relative escape get the same error
+    (the page never tells which paths exist on the server); the server keeps running."""
     set_playing(live_viewer, True)
     page, _ = open_viewer(browser, live_viewer.url)
+    messages = []
     try:
-        live_viewer.gui_pursuer_policy.value = "/no/such/run"
-        page.click_text("Load policies")
-        wait_for_text(page, "no such directory", timeout=30, what="the error in the page")
-        assert any("/no/such/run" in e for e in live_viewer.errors)
+        for spec in ("/no/such/run", "/etc", "../../../../.."):
+            errors = len(live_viewer.errors)
+            live_viewer.gui_pursuer_policy.value = spec
+            page.click_text("Load policies")
+            wait_until(lambda n=errors: len(live_viewer.errors) > n, timeout=30, what="the error")
+            message = live_viewer.errors[-1]
+            assert f"'{spec}'" in message, message
+            messages.append(message.replace(f"'{spec}'", "SPEC"))
+        wait_for_text(page, "not a run directory under", timeout=30, what="the error in the page")
+        assert len(set(messages)) == 1, messages
+        assert "no such" not in messages[0] and "checkpoint" not in messages[0]
         assert "/no/such/run" in capfd.readouterr().err
         assert live_viewer.source.run.policies["pursuer"].label == "scripted"
         assert moved(page) > 50, "the viewer stopped after the error"
@@ -276,6 +291,96 @@ def test_checkpoint_policies_attention_overlay_and_team_mismatch(browser, live_v
         live_viewer.gui_att_show.value = False
         live_viewer.gui_pursuer_policy.value = "scripted"
         live_viewer.gui_evader_policy.value = "random"
+        page.close()
+
+
+def forged_cases(v) -> list[tuple[str, object, str]]:
+    """(element id, updates, what the error must say) of messages that no honest page sends."""
+    return [
+        (gui_uuid(v.gui_seed), {"value": 1e30}, "'Seed' = 1e+30 from a browser: must be in [0, "),
+        (gui_uuid(v.gui_seed), {"value": 2**64 - 1}, "'Seed' = 18446744073709551615"),
+        (gui_uuid(v.gui_arenas), {"value": 65}, "'Arenas' = 65 from a browser: must be in [1, 64]"),
+        (gui_uuid(v.gui_arenas), {"value": 2.5}, "'Arenas' = 2.5 from a browser: expected a whole"),
+        (
+            gui_uuid(v.gui_arenas),
+            {"value": "3"},
+            "'Arenas' = '3' from a browser: expected a number",
+        ),
+        (
+            gui_uuid(v.gui_speed),
+            {"value": float("nan")},
+            "'Steps/s' = nan from a browser: expected a",
+        ),
+        (gui_uuid(v.gui_speed), {"value": float("-inf")}, "'Steps/s' = -inf"),
+        (
+            gui_uuid(v.gui_apply),
+            {"update_cb": []},
+            "an update of 'Apply scene' from a browser: only",
+        ),
+        (gui_uuid(v.gui_apply), {"value": True, "visible": False}, "'Apply scene' = True"),
+        (gui_uuid(v.gui_reset), {"value": False}, "'Reset' = False from a browser: not a click"),
+        (
+            gui_uuid(v.gui_status),
+            {"content": "<img src=x onerror=alert(1)>"},
+            "an update of an unk",
+        ),
+        (
+            gui_uuid(v.gui_preset),
+            {"value": "99-99-99"},
+            "'Preset' = '99-99-99' from a browser: exp",
+        ),
+        (gui_uuid(v.gui_backend), {"value": "warp"}, "'Backend' = 'warp'"),
+        (gui_uuid(v.gui_trails), {"value": "false"}, "'Trails' = 'false' from a browser: expected"),
+        (gui_uuid(v.gui_pursuer_policy), {"value": "x" * 5000}, "longer than 1024 characters"),
+        (gui_uuid(v.gui_pursuer_policy), {"value": "random\x00"}, "holds control characters"),
+        (gui_uuid(v.gui_att_agent), {"value": 10**9}, "'Agent' = 1000000000"),
+        (gui_uuid(v.gui_frame), {"value": -1}, "'Frame' = -1"),
+        ("no-such-element", {"value": 1}, "an unknown GUI element = 1"),
+        (gui_uuid(v.gui_seed), ["value", 3], "an update of 'Seed'"),
+    ]
+
+
+def test_forged_messages_are_refused_and_a_fresh_browser_still_plays(browser, live_viewer):
+    """Forged GUI messages through a real websocket (viser's protocol): each is refused, shown
+    and never applied (no handler removed, no value out of bounds stored); a valid forged
+    message still works; then a new connection and a fresh browser page connect and play."""
+    v = live_viewer
+    set_playing(v, True)
+    watched = (v.gui_seed, v.gui_arenas, v.gui_speed, v.gui_preset, v.gui_backend, v.gui_trails)
+    watched += (v.gui_pursuer_policy, v.gui_att_agent, v.gui_frame)
+    before = [h.value for h in watched]
+    handlers = {h.label: list(h._impl.update_cb) for h in (v.gui_apply, v.gui_reset, v.gui_load)}
+    rejected, errors = v.guard.rejected, len(v.errors)
+    cases = forged_cases(v)
+    with ForgedClient(v.port) as client:
+        for uuid, updates, _ in cases:
+            client.update(uuid, updates)
+        client.update(gui_uuid(v.gui_reset), {"value": True})  # the reset after a bad seed
+        wait_until(
+            lambda: v.guard.rejected >= rejected + len(cases), timeout=30, what="the refusals"
+        )
+        assert client.receive(0.5) > 0  # the forging client itself is still served
+    refusals = v.errors[errors:]
+    for _, _, message in cases:
+        assert any(message in e for e in refusals), (message, refusals)
+    assert [h.value for h in watched] == before
+    after = {h.label: list(h._impl.update_cb) for h in (v.gui_apply, v.gui_reset, v.gui_load)}
+    assert after == handlers and all(after.values())
+    assert np.isfinite(v.speed) and v.source.run.num_arenas == 2
+    # A valid forged value is applied: the guard filters, it does not block.
+    with ForgedClient(v.port) as client:
+        client.update(gui_uuid(v.gui_seed), {"value": 7})
+        wait_until(lambda: v.gui_seed.value == 7, timeout=10, what="the valid seed")
+        client.update(gui_uuid(v.gui_reset), {"value": True})
+        wait_until(lambda: v.source.run.seed == 7, timeout=20, what="the forged reset")
+    # New connections are served: a bare websocket, then a real browser that plays.
+    with ForgedClient(v.port) as client:
+        assert client.receive(1.0) > 0
+    page, _ = open_viewer(browser, v.url)
+    try:
+        wait_for_text(page, "refused", timeout=30, what="the refusal in the page")
+        assert moved(page) > 50, "the fresh page does not play"
+    finally:
         page.close()
 
 

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import os
 import re
 import signal
 import subprocess
 import sys
 import time
+import zipfile
 
 import pytest
 from viewer_helpers import shows_both_teams, synthetic_trajectory
@@ -43,19 +45,101 @@ def test_help_lists_the_flags():
     assert out.returncode == 0 and "--view" in out.stdout
 
 
-@pytest.mark.parametrize(
-    ("args", "message"),
-    [
+@pytest.fixture(scope="module")
+def bad_inputs(tmp_path_factory, trajectory_file):
+    """Damaged files and paths for the bad-argument table."""
+    root = tmp_path_factory.mktemp("bad")
+    # A 12 KB replay whose poses header claims 3.27 TiB.
+    with zipfile.ZipFile(trajectory_file) as src, zipfile.ZipFile(root / "huge.npz", "w") as dst:
+        for info in src.infolist():
+            if info.filename != "poses.npy":
+                dst.writestr(info.filename, src.read(info))
+        header = repr({"descr": "<f4", "fortran_order": False, "shape": (10**6, 10**5, 3, 3)})
+        header = header.encode() + b" " * (63 - (len(header) + 10) % 64) + b"\n"
+        npy = b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header
+        dst.writestr("poses.npy", npy + b"\0" * 12_000, zipfile.ZIP_STORED)
+    (root / "damaged-run" / "checkpoints" / "3").mkdir(parents=True)
+    (root / "damaged-run" / "checkpoints" / "3" / "_CHECKPOINT_METADATA").write_text("{not json")
+    (root / "damaged-run" / "config.json").write_text('{"preset": 7')
+    (root / "a-file").write_text("")
+    return root
+
+
+def bad_view_arguments(bad) -> list[tuple[tuple[str, ...], str]]:
+    """(arguments of `pe-mjx view`, what its one error line must say)."""
+    return [
         (("--preset", "nope"), "unknown preset 'nope'"),
         (("--replay", "/no/such/file.npz"), "no such file"),
-        (("--arenas", "0"), "--arenas must be >= 1"),
+        (("--replay", str(bad)), "not a file"),
+        (("--replay", str(bad / "huge.npz")), "huge.npz: poses declares 3,600,000,000,000 bytes"),
+        (("--arenas", "0"), "--arenas must be in 1..64, got 0"),
+        (("--arenas", "65"), "--arenas must be in 1..64, got 65"),
         (("--backend", "warp"), "unknown backend"),
-    ],
-)
-def test_bad_arguments_exit_2_with_a_clear_error(args, message):
-    out = run("view", *args)
-    assert out.returncode == 2
-    assert message in out.stderr
+        (("--port", "-1"), "--port must be in 0..65535, got -1"),
+        (("--port", "70000"), "--port must be in 0..65535, got 70000"),
+        (("--host", "no-such-host.invalid"), "--host 'no-such-host.invalid' does not resolve"),
+        (("--host", "192.0.2.1"), "--host '192.0.2.1': cannot listen on 192.0.2.1"),
+        (("--seed", "-1"), "--seed must be in 0..4294967295, got -1"),
+        (("--seed", str(2**63)), "--seed must be in 0..4294967295"),
+        (("--speed", "nan"), "--speed must be a finite number >= 0, got nan"),
+        (("--speed", "-1"), "--speed must be a finite number >= 0"),
+        (("--steps", "0", "--export", str(bad / "x")), "--steps must be >= 1"),
+        (("--record-dir", str(bad / "a-file")), "--record-dir: "),
+        (("--policy-roots", str(bad / "none")), "--policy-roots: "),
+        (("--pursuers", "nope", "--preset", "2-1-1"), "--pursuers: pursuer policy 'nope'"),
+        (("--pursuers", str(bad / "damaged-run"), "--preset", "2-1-1"), "--pursuers: "),
+        (("--evaders", str(bad / "a-file"), "--preset", "2-1-1"), "--evaders: "),
+    ]
+
+
+def test_bad_arguments_fail_fast_with_one_clear_error(bad_inputs):
+    """Every bad flag or file: exit 2 within a minute (no hang), one `pe-mjx: error:` line that
+    says what is wrong, no traceback, before any server starts."""
+    cases = bad_view_arguments(bad_inputs)
+
+    def attempt(args: tuple[str, ...]) -> subprocess.CompletedProcess:
+        try:
+            return run("view", *args, timeout=60)
+        except subprocess.TimeoutExpired as err:
+            return subprocess.CompletedProcess(err.cmd, -1, "", f"hung: {err}")
+
+    with concurrent.futures.ThreadPoolExecutor(3) as pool:
+        results = list(pool.map(attempt, [a for a, _ in cases]))
+    failures = []
+    for (args, message), out in zip(cases, results, strict=True):
+        errors = [line for line in out.stderr.splitlines() if line.startswith("pe-mjx: error:")]
+        last = (out.stderr.strip().splitlines() or [""])[-1]
+        clear = out.returncode == 2 and len(errors) == 1 and errors[0] == last
+        if not (clear and message in last and "Traceback" not in out.stderr):
+            failures.append(f"{' '.join(args)}: exit {out.returncode}\n{out.stderr[-600:]}")
+    print(f"pe-mjx view: {len(cases)} bad invocations, {len(cases) - len(failures)} clear errors")
+    assert not failures, "\n\n".join(failures)
+
+
+def test_non_local_host_prints_a_warning(trajectory_file):
+    proc = subprocess.Popen(
+        [*CLI, "view", "--replay", str(trajectory_file), "--host", "0.0.0.0", "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=_env(),
+    )
+    try:
+        lines = []
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line or "open http://" in line:
+                break
+            lines.append(line)
+        text = "".join(lines)
+        assert "pe-mjx view: warning: --host 0.0.0.0 serves the viewer to other machines" in text
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def test_export_of_a_replay_writes_viser_and_html_and_never_overwrites(trajectory_file, tmp_path):

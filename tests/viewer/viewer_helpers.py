@@ -1,4 +1,5 @@
-"""Helpers of the viewer tests: polling, what a screenshot shows, a hand-made trajectory."""
+"""Helpers of the viewer tests: polling, what a screenshot shows, a hand-made trajectory, and a
+websocket client that forges what a browser could send."""
 
 from __future__ import annotations
 
@@ -74,3 +75,72 @@ def synthetic_trajectory(frames: int = 40, arenas: int = 2) -> Trajectory:
         cause=cause,
         meta={"source": "synthetic"},
     )
+
+
+class ForgedClient:
+    """A websocket client that speaks viser's protocol as its browser client does (one msgpack
+    message per frame, the ``viser-v<version>`` subprotocol) to send what no honest page would."""
+
+    def __init__(self, port: int):
+        import viser
+        from websockets.sync.client import connect
+
+        self.ws = connect(
+            f"ws://127.0.0.1:{port}",
+            subprotocols=[f"viser-v{viser.__version__}"],
+            max_size=None,
+            open_timeout=30,
+        )
+        # A page counts as connected (its clicks reach the callbacks) after its first camera.
+        self.send(
+            {
+                "type": "ViewerCameraMessage",
+                "wxyz": (1.0, 0.0, 0.0, 0.0),
+                "position": (0.0, 0.0, 5.0),
+                "fov": 1.0,
+                "near": 0.01,
+                "far": 100.0,
+                "image_height": 768,
+                "image_width": 1024,
+                "look_at": (0.0, 0.0, 0.0),
+                "up_direction": (0.0, 0.0, 1.0),
+            }
+        )
+
+    def send(self, message: dict) -> None:
+        import msgspec
+
+        self.ws.send(msgspec.msgpack.encode(message))
+
+    def update(self, uuid: str, updates: object) -> None:
+        """What the page sends when an input changes (``{"value": ...}`` for a click or value)."""
+        self.send({"type": "GuiUpdateMessage", "uuid": uuid, "updates": updates})
+
+    def receive(self, seconds: float) -> int:
+        """Messages received in `seconds`; raises if the server closes the connection."""
+        from websockets.exceptions import ConnectionClosed
+
+        count, deadline = 0, time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                self.ws.recv(timeout=left)
+            except TimeoutError:
+                break
+            except ConnectionClosed as err:
+                raise AssertionError(f"the server closed the connection: {err}") from None
+            count += 1
+        return count
+
+    def close(self) -> None:
+        self.ws.close()
+
+    def __enter__(self) -> ForgedClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def gui_uuid(handle) -> str:
+    """The id a page uses for a GUI element (viser sends it to every page)."""
+    return handle._impl.uuid
