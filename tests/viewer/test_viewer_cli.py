@@ -135,7 +135,7 @@ def test_non_local_host_prints_a_warning(trajectory_file):
         text = "".join(lines)
         assert "pe-mjx view: warning: --host 0.0.0.0 serves the viewer to other machines" in text
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=30) == 0
+        assert proc.wait(timeout=30) in (0, 130)  # 130: the Ctrl-C came before the wait loop
     finally:
         if proc.poll() is None:
             proc.kill()
