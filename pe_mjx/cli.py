@@ -2,19 +2,23 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import os
+import re
 import signal
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import tyro
 
 from pe_mjx.config import PRESETS
-from pe_mjx.ppo.config import TrainConfig
+from pe_mjx.experiment import ExperimentConfig
 
 
 def _fail(message: str) -> None:
@@ -52,19 +56,30 @@ class DemoArgs:
     """Control steps at most (the episode may end earlier)."""
 
 
+PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainArgs:
     """Train a pursuer and an evader policy together (IPPO co-evolution), or one against a fixed
-    opponent. Logs to <out>/tb (TensorBoard), checkpoints to <out>/checkpoints."""
+    opponent. Every field of the experiment is a flag (--env.reward.capture 50,
+    --pursuer.network.encoder mean, --ppo.learning-rate 1e-4); the run directory gets the whole
+    tree in config.json, TensorBoard logs in tb/ and checkpoints in checkpoints/."""
 
-    config: Annotated[TrainConfig, tyro.conf.arg(name="")] = dataclasses.field(
-        default_factory=TrainConfig
+    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=ExperimentConfig
     )
+    preset: PresetName | None = None
+    """Scenario preset (P-E-K) whose game the env flags start from (default 20-5-8)."""
+    config: Path | None = None
+    """Read the experiment from this JSON or YAML file (a whole tree, a partial one over the
+    preset, or a run's config.json); flags given with it override it."""
     out: Path | None = None
-    """Run directory (default: runs/<pursuer_encoder>-<preset>)."""
+    """Run directory (default: runs/<pursuer encoder>-<preset>)."""
     resume: Path | None = None
-    """Continue the run in this directory where it stopped (its saved config is used; a
-    non-default --env-steps extends the budget)."""
+    """Continue the run in this directory where it stopped, with its saved config. Only
+    --env-steps (the budget), --eval-every, --eval-envs and --checkpoint-every may change;
+    any other flag that changes the saved config is refused."""
     stop_after: int | None = None
     """Stop (with a checkpoint) after this many iterations; resume later with --resume."""
     progress: bool = True
@@ -74,20 +89,62 @@ class TrainArgs:
     http://127.0.0.1:8080, or the next free port)."""
 
 
+def _prescan(argv: list[str]) -> dict[str, str]:
+    """The values of --preset, --config and --resume, read before the full parse (they decide
+    the defaults of every other flag)."""
+    found: dict[str, str] = {}
+    for i, arg in enumerate(argv):
+        for flag in ("--preset", "--config", "--resume"):
+            if arg == flag and i + 1 < len(argv):
+                found[flag] = argv[i + 1]
+            elif arg.startswith(flag + "="):
+                found[flag] = arg.split("=", 1)[1]
+    return found
+
+
+def train_defaults(argv: list[str]) -> TrainArgs:
+    """The `TrainArgs` whose experiment the flags in `argv` then change: the saved config of a
+    resumed run, a config file over a preset, or a preset's defaults."""
+    from pe_mjx.experiment import default_config, read_config_file
+
+    found = _prescan(argv)
+    preset = found.get("--preset")
+    if preset is not None and preset not in PRESETS:
+        _fail(f"--preset: unknown preset {preset!r}; known presets: {', '.join(PRESETS)}")
+    if "--resume" in found:
+        if "--preset" in found or "--config" in found:
+            _fail("--resume continues a run with its saved config; drop --preset/--config")
+        from pe_mjx.ppo.checkpoint import CheckpointError
+        from pe_mjx.ppo.run import saved_config
+
+        try:
+            base = saved_config(found["--resume"])
+        except CheckpointError as err:
+            _fail(f"--resume: {err}")
+    elif "--config" in found:
+        base = read_config_file(found["--config"], preset)
+    else:
+        base = default_config(preset or "20-5-8")
+    return TrainArgs(experiment=base)
+
+
 def run_train(args: TrainArgs) -> None:
     from pe_mjx.ppo.checkpoint import CheckpointError
     from pe_mjx.ppo.run import resume_config, train
 
+    config = args.experiment
     try:
         if args.resume is not None:
-            budget = args.config.env_steps
-            config = resume_config(
-                args.resume, None if budget == TrainConfig().env_steps else budget
-            )
+            if args.out is not None and args.out.resolve() != args.resume.resolve():
+                _fail("--out and --resume name different directories; give only --resume")
+            saved = resume_config(args.resume)
+            config = resume_config(args.resume, config)
+            for field in saved.differences(config):
+                old, new = getattr(saved, field), getattr(config, field)
+                print(f"pe-mjx train: resuming with {field} {old} -> {new}", flush=True)
             out = args.resume
         else:
-            config = args.config
-            out = args.out or Path("runs") / f"{config.pursuer_encoder}-{config.preset}"
+            out = args.out or Path("runs") / f"{config.pursuer.network.encoder}-{config.preset}"
         viewer = None
         if args.view:
             from pe_mjx.viewer.app import start_viewer
@@ -362,6 +419,47 @@ def run_demo(args: DemoArgs) -> None:
         print(f"{key:>28s}: {value}")
 
 
+def _one_line(box: str) -> str:
+    """tyro's boxed error message as one line (its text without the frame and the help hint)."""
+    parts = []
+    for line in box.splitlines():
+        text = re.sub(r"[│╭╮╰╯─]+", " ", line).strip()
+        if not text or text.startswith(("For full helptext", "Usage:", "usage:")):
+            continue
+        parts.append(text)
+    message = re.sub(r"\s+", " ", " ".join(parts)).strip()
+    for prefix in ("Value error ", "Parsing error ", "Invalid choice "):
+        message = message.removeprefix(prefix)
+    message = message.replace("Unrecognized options Unrecognized options:", "unrecognized flags:")
+    # "Error parsing experiment.env.arena: invalid config: radius must ..." -> "--env.arena.radius
+    # must ...": name the flag.
+    found = re.match(r"Error parsing ([\w.]+): invalid config: ([\w.]+) (.*)", message)
+    if found:
+        path = found.group(1).split(".")[1:]
+        field = found.group(2)
+        if path and field.startswith(path[-1] + "."):
+            path = path[:-1]
+        flag = ".".join([*path, field]).replace("_", "-")
+        message = f"--{flag} {found.group(3)}"
+    return message or "invalid arguments (see --help)"
+
+
+def _parse(parse: Callable[[], object]) -> object:
+    """Runs a tyro parse; its errors become one line `pe-mjx: error: ...` and exit code 2."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            return parse()
+    except SystemExit as exit_:
+        if exit_.code in (0, None):
+            sys.stderr.write(captured.getvalue())
+            raise
+        _fail(_one_line(captured.getvalue()))
+    except ValueError as err:  # a config check that failed while the flags were parsed
+        _fail(str(err))
+    raise AssertionError("unreachable")
+
+
 def main(argv: list[str] | None = None) -> None:
     commands = {
         "scene": (SceneArgs, run_scene),
@@ -370,8 +468,26 @@ def main(argv: list[str] | None = None) -> None:
         "view": (ViewArgs, run_view),
         "evaluate": (EvaluateArgs, run_evaluate),
     }
+    argv = sys.argv[1:] if argv is None else list(argv)
     subcommands = {name: cls for name, (cls, _) in commands.items()}
-    args = tyro.extras.subcommand_cli_from_dict(subcommands, args=argv, prog="pe-mjx")
+    if argv[:1] == ["train"]:
+        try:
+            default = train_defaults(argv[1:])
+        except ValueError as err:
+            _fail(str(err))
+        args = _parse(
+            lambda: tyro.cli(
+                TrainArgs,
+                args=argv[1:],
+                default=default,
+                prog="pe-mjx train",
+                description=TrainArgs.__doc__,
+            )
+        )
+    else:
+        args = _parse(
+            lambda: tyro.extras.subcommand_cli_from_dict(subcommands, args=argv, prog="pe-mjx")
+        )
     # Ctrl-C and `kill` stop every command the same way (a KeyboardInterrupt: the viewer shuts
     # its server down, training keeps its last atomic checkpoint), also when started from a shell
     # that left SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN).

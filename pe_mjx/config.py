@@ -5,11 +5,21 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import types
 import typing
-from typing import Any
+from typing import Any, TypeVar
 
 TEAMS = ("pursuer", "evader")
 ENCODERS = ("mix", "mean", "birnn", "mlp")
+BACKENDS = ("mjx", "kinematic")
+T = TypeVar("T")
+
+
+def other_team(team: str) -> str:
+    """The opposing team's name."""
+    if team not in TEAMS:
+        raise ValueError(f"unknown team {team!r}; expected one of {TEAMS}")
+    return TEAMS[1 - TEAMS.index(team)]
 
 
 def _check(cond: bool, field: str, msg: str) -> None:
@@ -17,22 +27,98 @@ def _check(cond: bool, field: str, msg: str) -> None:
         raise ValueError(f"invalid config: {field} {msg}")
 
 
-def _check_types(cls: type, values: dict[str, Any], prefix: str) -> None:
-    """Loaded (JSON) values must have their field's scalar type: no strings for numbers."""
+def check_finite(obj: Any, prefix: str = "") -> None:
+    """Every float field of a config dataclass must be finite (no NaN, no infinity)."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"invalid config: {prefix}{f.name} must be finite, got {value}")
+
+
+def _scalar_ok(value: Any, kind: Any) -> bool:
+    if kind is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if kind is bool:
+        return isinstance(value, bool)
+    if kind is str:
+        return isinstance(value, str)
+    if kind is type(None):
+        return value is None
+    if typing.get_origin(kind) is typing.Literal:
+        return value in typing.get_args(kind)
+    return False
+
+
+def _convert(value: Any, kind: Any, where: str) -> Any:
+    """`value` (parsed JSON/YAML) as an instance of the annotation `kind`, or ValueError."""
+    if dataclasses.is_dataclass(kind):
+        return from_dict(kind, value, f"{where}.")
+    origin = typing.get_origin(kind)
+    if origin in (typing.Union, types.UnionType):
+        options = typing.get_args(kind)
+        for option in options:
+            if _scalar_ok(value, option):
+                return float(value) if option is float else value
+        for option in options:
+            if typing.get_origin(option) is tuple and isinstance(value, list | tuple):
+                return _convert(value, option, where)
+    elif origin is tuple:
+        args = typing.get_args(kind)
+        if isinstance(value, list | tuple):
+            item = args[0]
+            if (len(args) == 2 and args[1] is Ellipsis) or len(args) == len(value):
+                items = args if len(args) == len(value) else [item] * len(value)
+                return tuple(_convert(v, k, where) for v, k in zip(value, items, strict=True))
+    elif _scalar_ok(value, kind):
+        return float(value) if kind is float else value
+    allowed = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+    raise ValueError(f"invalid config: {where} has the wrong type or value: {value!r} ({allowed})")
+
+
+def from_dict(cls: type[T], data: Any, prefix: str = "") -> T:
+    """Rebuilds a (nested) frozen config dataclass from `to_dict` output or parsed JSON/YAML.
+
+    Every key must be a field, every field without a default must be given, and every value must
+    have its field's type (no strings for numbers, no floats for ints, a Literal's values only);
+    the dataclass's own checks then run. Errors are one-line `ValueError`s naming the field path.
+    """
+    name = prefix.rstrip(".") or cls.__name__
+    if not isinstance(data, dict):
+        raise ValueError(f"invalid config: {name} must be an object, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
-    for name, value in values.items():
-        allowed = typing.get_args(hints.get(name)) or (hints.get(name),)
-        if value is None and type(None) in allowed:
-            continue
-        if float in allowed:
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        elif int in allowed:
-            ok = isinstance(value, int) and not isinstance(value, bool)
-        elif str in allowed:
-            ok = isinstance(value, str)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ValueError(f"invalid config: unknown fields {[prefix + k for k in unknown]}")
+    missing = [
+        prefix + n
+        for n, f in fields.items()
+        if n not in data
+        and f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+    ]
+    if missing:
+        raise ValueError(f"invalid config: missing fields {missing}")
+    kwargs = {k: _convert(v, hints[k], prefix + k) for k, v in data.items()}
+    return cls(**kwargs)
+
+
+def to_dict(config: Any) -> dict[str, Any]:
+    """A config dataclass as plain JSON-ready data (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def merge(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """`base` with `changes` applied recursively (a partial config over a full one)."""
+    out = dict(base)
+    for key, value in changes.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge(out[key], value)
         else:
-            continue
-        _check(ok, f"{prefix}{name}", f"has the wrong type: {value!r}")
+            out[key] = value
+    return out
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -55,6 +141,7 @@ class TeamConfig:
     """Ackermann constraint (paper V): actions with v/|omega| < this are masked. 0 disables it."""
 
     def __post_init__(self) -> None:
+        check_finite(self)
         _check(self.num_agents >= 1, "num_agents", f"must be >= 1, got {self.num_agents}")
         _check(self.radius > 0, "radius", f"must be > 0, got {self.radius}")
         _check(self.max_speed > 0, "max_speed", f"must be > 0, got {self.max_speed}")
@@ -90,6 +177,7 @@ class ArenaConfig:
     """Candidate positions drawn per entity by the placement sampler (first valid one wins)."""
 
     def __post_init__(self) -> None:
+        check_finite(self)
         _check(self.radius > 0, "arena.radius", f"must be > 0, got {self.radius}")
         _check(self.num_obstacles >= 0, "arena.num_obstacles", "must be >= 0")
         _check(
@@ -120,11 +208,21 @@ class RewardConfig:
     4000 at gamma 0.99; with r_s = 50 the pursuers learned to follow, not to capture."""
     evader_alive: float = 1.0
     """r_e: per-step reward of an evader that is still active."""
+    opponent_danger_distance: float | None = None
+    """d_danger of the evader's f_c terms to pursuers, in metres (None: danger_distance). The
+    paper uses one d_danger for every f_c; a larger one here gives evaders a dense signal to
+    keep away from pursuers (docs/results.md, evader diagnosis)."""
 
     def __post_init__(self) -> None:
+        check_finite(self)
         _check(self.collision <= 0, "reward.collision", "(r_c) must be <= 0")
         _check(self.danger_distance > 0, "reward.danger_distance", "must be > 0")
         _check(self.capture_distance > 0, "reward.capture_distance", "must be > 0")
+        _check(
+            self.opponent_danger_distance is None or self.opponent_danger_distance > 0,
+            "reward.opponent_danger_distance",
+            "must be > 0 or None",
+        )
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -156,8 +254,10 @@ class EnvConfig:
     reward: RewardConfig = dataclasses.field(default_factory=RewardConfig)
     control_dt: float = 0.2
     """Control step in seconds (one env step)."""
-    physics_dt: float = 0.05
-    """MJX physics step in seconds; control_dt must be a whole multiple of it."""
+    physics_dt: float = 0.2
+    """MJX physics step in seconds; control_dt must be a whole multiple of it. Every physics step
+    ends exactly on the commanded arc (deadbeat actuators, chord commands), so substeps add no
+    accuracy, only cost (docs/design.md, "MJX actuation")."""
     max_steps: int = 1000
     """Episode limit in control steps (truncation)."""
     capture_radius: float | None = None
@@ -167,9 +267,11 @@ class EnvConfig:
     mask_points: int = 4
     """Points checked along each action's arc within the look-ahead."""
     actuator_time_constant: float = 0.005
-    """Velocity-actuator lag (mass / kv) of the MJX model, in seconds."""
+    """Not used (kept so that saved configs load): the MJX velocity actuators are deadbeat, since
+    a lag lets agents coast past the arc that the action mask checked (docs/design.md)."""
 
     def __post_init__(self) -> None:
+        check_finite(self)
         _check(self.control_dt > 0, "control_dt", "must be > 0")
         _check(self.physics_dt > 0, "physics_dt", "must be > 0")
         ratio = self.control_dt / self.physics_dt
@@ -245,7 +347,7 @@ class EnvConfig:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        return to_dict(self)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
@@ -253,35 +355,7 @@ class EnvConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> EnvConfig:
         """Rebuild from `to_dict` output; unknown or missing keys raise ValueError."""
-        if not isinstance(d, dict):
-            raise ValueError(f"env config must be a JSON object, got {type(d).__name__}")
-        sub = {"arena": ArenaConfig, "pursuer": TeamConfig, "evader": TeamConfig}
-        sub["reward"] = RewardConfig
-        kwargs: dict[str, Any] = {}
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"invalid config: unknown fields {sorted(unknown)}")
-        for key, value in d.items():
-            if key in sub:
-                if not isinstance(value, dict):
-                    raise ValueError(f"invalid config: {key} must be an object")
-                sub_names = {f.name for f in dataclasses.fields(sub[key])}
-                bad = set(value) - sub_names
-                if bad:
-                    raise ValueError(f"invalid config: unknown fields {key}.{sorted(bad)}")
-                _check_types(sub[key], value, f"{key}.")
-                try:
-                    kwargs[key] = sub[key](**value)
-                except TypeError as err:  # a missing field
-                    raise ValueError(f"invalid config: {key}: {err}") from None
-            else:
-                kwargs[key] = value
-        _check_types(cls, {k: v for k, v in kwargs.items() if k not in sub}, "")
-        try:
-            return cls(**kwargs)
-        except TypeError as err:
-            raise ValueError(f"invalid config: {err}") from None
+        return from_dict(cls, d)
 
 
 def _paper(pursuers: int, evaders: int, obstacles: int, arena_radius: float = 5.0) -> EnvConfig:

@@ -63,7 +63,6 @@ biases zero.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -73,7 +72,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-ENCODERS = ("mix", "mean", "birnn", "mlp")
+from pe_mjx.config import ENCODERS
+from pe_mjx.experiment import NetworkConfig
+
+__all__ = ["ENCODERS", "MIX_QUERIES", "NetworkConfig", "make_network"]
+MIX_QUERIES = ("own", "all")
+
 ENTITY_TYPES = ("teammates", "opponents", "obstacles")
 MASK_KEYS = {
     "teammates": "teammate_mask",
@@ -85,111 +89,10 @@ FEATURES = {"own": 5, "teammates": 6, "opponents": 6, "obstacles": 4}
 MASKED_LOGIT = -1e9
 _FAR = 1e9  # sort key of padded entities: after every real one
 _LECUN = nn.initializers.lecun_normal()
-MIX_QUERIES = ("own", "all")
-
-
-def _check(cond: bool, field: str, msg: str) -> None:
-    if not cond:
-        raise ValueError(f"invalid network config: {field} {msg}")
 
 
 def _is_int(x: Any) -> bool:
     return isinstance(x, int | np.integer) and not isinstance(x, bool)
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class NetworkConfig:
-    """Actor-critic architecture. JSON-serialisable through `to_dict` / `from_dict`."""
-
-    encoder: str = "mix"
-    """State encoder: "mix" (Mix-Attention), "mean" (Mean-Embedding), "birnn" or "mlp"."""
-    width: int = 32
-    """Embedding width of the encoders (token size, GRU hidden size)."""
-    num_heads: int = 4
-    """Mix-Attention heads; must divide `width`."""
-    hidden: int = 64
-    """Units of each of the two layers of the policy and value heads."""
-    nearest_k: int | None = None
-    """Keep only the k nearest entities of each type (None: all, as in the paper)."""
-    mlp_counts: tuple[int, int, int] | None = None
-    """MLP only (required there, ignored elsewhere): (teammates, opponents, obstacles) it was
-    built for; other counts are zero-padded or truncated to these."""
-    mix_queries: str = "own"
-    """MIX only: which tokens query the attention layer. "own": the agent's own token attends
-    over all tokens (O(N) per agent); "all": full self-attention, every token attends over every
-    token, pooled (O(N^2) per agent, about 5-10x slower on CPU)."""
-
-    def __post_init__(self) -> None:
-        _check(
-            self.encoder in ENCODERS, "encoder", f"must be one of {ENCODERS}, got {self.encoder!r}"
-        )
-        _check(_is_int(self.width) and self.width >= 1, "width", f"must be >= 1, got {self.width}")
-        _check(
-            _is_int(self.num_heads) and self.num_heads >= 1,
-            "num_heads",
-            f"must be >= 1, got {self.num_heads}",
-        )
-        _check(
-            self.width % self.num_heads == 0,
-            "num_heads",
-            f"must divide width={self.width}, got {self.num_heads}",
-        )
-        _check(
-            _is_int(self.hidden) and self.hidden >= 1, "hidden", f"must be >= 1, got {self.hidden}"
-        )
-        _check(
-            self.nearest_k is None or (_is_int(self.nearest_k) and self.nearest_k >= 1),
-            "nearest_k",
-            f"must be None or >= 1, got {self.nearest_k}",
-        )
-        _check(
-            self.mix_queries in MIX_QUERIES,
-            "mix_queries",
-            f"must be one of {MIX_QUERIES}, got {self.mix_queries!r}",
-        )
-        if self.mlp_counts is not None:
-            counts = self.mlp_counts
-            _check(
-                isinstance(counts, tuple | list)
-                and len(counts) == 3
-                and all(_is_int(c) and c >= 0 for c in counts),
-                "mlp_counts",
-                f"must be three ints >= 0 (teammates, opponents, obstacles), got {counts!r}",
-            )
-            object.__setattr__(self, "mlp_counts", tuple(int(c) for c in counts))
-        _check(
-            self.encoder != "mlp" or self.mlp_counts is not None,
-            "mlp_counts",
-            "is required for encoder 'mlp' (the training scene's entity counts)",
-        )
-
-    def replace(self, **changes: Any) -> NetworkConfig:
-        return dataclasses.replace(self, **changes)
-
-    def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        if d["mlp_counts"] is not None:
-            d["mlp_counts"] = list(d["mlp_counts"])
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> NetworkConfig:
-        """Rebuild from `to_dict` output (or its JSON); unknown keys raise ValueError."""
-        if not isinstance(d, dict):
-            raise ValueError(f"network config must be a JSON object, got {type(d).__name__}")
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        _check(not unknown, "fields", f"unknown: {sorted(unknown)}")
-        kwargs = dict(d)
-        if kwargs.get("mlp_counts") is not None:
-            counts = kwargs["mlp_counts"]
-            _check(
-                isinstance(counts, list | tuple),
-                "mlp_counts",
-                f"must be a list of three ints, got {counts!r}",
-            )
-            kwargs["mlp_counts"] = tuple(counts)
-        return cls(**kwargs)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -483,6 +386,11 @@ def make_network(config: NetworkConfig, num_actions: int) -> ActorCritic:
     """The actor-critic module; ``init(rng, obs)`` / ``apply(params, obs) -> (logits, value)``."""
     if not _is_int(num_actions) or num_actions < 1:
         raise ValueError(f"num_actions must be >= 1, got {num_actions}")
+    if config.encoder == "mlp" and config.mlp_counts is None:
+        raise ValueError(
+            "invalid network config: mlp_counts is required for encoder 'mlp' (the training "
+            "scene's entity counts; NetworkConfig.for_scene fills them in)"
+        )
     return ActorCritic(config=config, num_actions=int(num_actions))
 
 

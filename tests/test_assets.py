@@ -55,10 +55,7 @@ def test_shipped_policies_play_valid_actions(preset):
 
 def test_shipped_policy_cannot_be_resumed():
     """It carries no optimiser state: resuming it is a clear error, not a library traceback."""
-    from pe_mjx.ppo.checkpoint import restore_train_state
-    from pe_mjx.ppo.config import TrainConfig
-    from pe_mjx.ppo.train import Trainer
+    from pe_mjx.ppo.run import saved_config
 
-    config = TrainConfig.from_dict(read_meta(SHIPPED)["train_config"])
-    with pytest.raises(CheckpointError, match="policies only"):
-        restore_train_state(SHIPPED, Trainer(config))
+    with pytest.raises(CheckpointError, match="cannot be resumed"):
+        saved_config(SHIPPED)

@@ -40,7 +40,7 @@ def test_paper_table_one_defaults():
     assert (e.radius, e.max_speed, e.max_turn_rate) == (0.15, 0.4, pytest.approx(math.pi / 2))
     assert (e.num_speeds, e.num_turn_rates, e.num_actions) == (5, 19, 95)
     assert cfg.capture_eps == pytest.approx(0.25)
-    assert cfg.num_substeps == 4
+    assert cfg.num_substeps == 1
 
 
 def test_large_preset_has_paper_density():
@@ -172,7 +172,7 @@ def test_from_dict_rejects_bad_input():
         EnvConfig.from_dict({**d, "pursuer": missing})
     with pytest.raises(ValueError, match="radius"):
         EnvConfig.from_dict({**d, "pursuer": {**d["pursuer"], "radius": "big"}})
-    with pytest.raises(ValueError, match="JSON object"):
+    with pytest.raises(ValueError, match="must be an object"):
         EnvConfig.from_dict([1, 2])
     bad = {**d, "arena": {**d["arena"], "num_obstacles": 99}}
     with pytest.raises(ValueError, match=r"arena\.num_obstacles"):

@@ -6,22 +6,26 @@ One definition, so both test modules compile the same program (the persistent co
 
 from __future__ import annotations
 
-from pe_mjx.ppo.config import TrainConfig
+from typing import Any
 
-TINY = dict(
-    preset="4-1-2",
-    backend="kinematic",
-    num_envs=8,
-    unroll_length=8,
-    update_epochs=1,
-    num_minibatches=2,
-    eval_every=0,
-    checkpoint_every=2,
-    width=16,
-    hidden=32,
-)
+from pe_mjx.experiment import ExperimentConfig, default_config
+
+TINY: dict[str, Any] = {
+    "backend": "kinematic",
+    "ppo.num_envs": 8,
+    "ppo.unroll_length": 8,
+    "ppo.update_epochs": 1,
+    "ppo.num_minibatches": 2,
+    "eval_every": 0,
+    "checkpoint_every": 2,
+    "pursuer.network.width": 16,
+    "pursuer.network.hidden": 32,
+    "evader.network.width": 16,
+    "evader.network.hidden": 32,
+}
 
 
-def tiny(**changes) -> TrainConfig:
-    """TINY with a 4-iteration budget, plus `changes`."""
-    return TrainConfig(**{**TINY, "env_steps": 8 * 8 * 4, **changes})
+def tiny(preset: str = "4-1-2", **changes: Any) -> ExperimentConfig:
+    """TINY in `preset` with a 4-iteration budget, plus `changes` (dotted paths as keywords:
+    `tiny(**{"evader.policy": "scripted"})`)."""
+    return default_config(preset).override({**TINY, "env_steps": 8 * 8 * 4, **changes})

@@ -24,8 +24,9 @@ import jax
 import tyro
 
 from pe_mjx.config import ENCODERS
+from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.paper import paper_experiment
 from pe_mjx.policies import make_policy
-from pe_mjx.ppo.config import TrainConfig
 from pe_mjx.ppo.train import Trainer
 
 
@@ -55,7 +56,7 @@ def _time(fn, state, repeats: int) -> float:
     return best
 
 
-def measure(config: TrainConfig, repeats: int, eager_reset: bool = False) -> dict:
+def measure(config: ExperimentConfig, repeats: int, eager_reset: bool = False) -> dict:
     trainer = Trainer(config)
     if eager_reset:  # the ablation: a fresh arena drawn for every arena on every step
         trainer.env.step_batch = jax.vmap(trainer.env.step)
@@ -78,10 +79,10 @@ def measure(config: TrainConfig, repeats: int, eager_reset: bool = False) -> dic
     agents = trainer.env_config.num_agents
     return {
         "preset": config.preset,
-        "encoder": config.pursuer_encoder,
+        "encoder": config.pursuer.network.encoder,
         "backend": config.backend,
-        "num_envs": config.num_envs,
-        "unroll_length": config.unroll_length,
+        "num_envs": config.ppo.num_envs,
+        "unroll_length": config.ppo.unroll_length,
         "reset": "every step" if eager_reset else "when done",
         "compile_s": compile_s,
         "env_steps_per_s": steps / t_iter,
@@ -102,14 +103,8 @@ def main() -> None:
         plan.append(("20-5-8", "mix", "mjx", 64, 32, False))
         plan += [("240-60-120", e, args.backend, 8, 16, False) for e in args.encoders]
     for preset, encoder, backend, num_envs, unroll, eager_reset in plan:
-        config = TrainConfig(
-            preset=preset,
-            backend=backend,
-            pursuer_encoder=encoder,
-            evader_encoder=encoder,
-            num_envs=num_envs,
-            unroll_length=unroll,
-            eval_every=0,
+        config = paper_experiment(encoder, preset, backend=backend).override(
+            {"ppo.num_envs": num_envs, "ppo.unroll_length": unroll, "eval_every": 0}
         )
         result = measure(config, args.repeats, eager_reset)
         print(json.dumps(result), flush=True)

@@ -16,94 +16,12 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
-import sys
 from pathlib import Path
 
 import tyro
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "train"))
-
-from paper import ENV_STEPS, paper_runs  # noqa: E402
-
-from pe_mjx.config import ENCODERS  # noqa: E402
-
-# The paper's tables: (evader method, pursuer method) -> (success, travel, pursuit cost,
-# per-evader cost).
-PAPER = {
-    "II": {
-        ("mlp", "birnn"): (0.995, 3.948, 4.32, 1.085),
-        ("mlp", "mean"): (0.998, 2.954, 3.89, 0.975),
-        ("mlp", "mix"): (1.000, 3.527, 4.35, 1.088),
-        ("birnn", "mlp"): (0.565, 19.805, 7.05, 3.119),
-        ("birnn", "mean"): (0.470, 18.477, 3.71, 1.973),
-        ("birnn", "mix"): (0.863, 20.694, 5.18, 1.501),
-        ("mean", "mlp"): (0.193, 22.096, 5.32, 6.909),
-        ("mean", "birnn"): (0.648, 29.808, 5.26, 2.031),
-        ("mean", "mix"): (0.748, 27.832, 4.42, 1.478),
-        ("mix", "mlp"): (0.638, 16.641, 8.56, 3.357),
-        ("mix", "birnn"): (0.733, 27.303, 5.44, 1.857),
-        ("mix", "mean"): (0.503, 19.276, 3.52, 1.751),
-    },
-    "III": {
-        ("mlp", "birnn"): (0.998, 2.743, 6.30, 1.263),
-        ("mlp", "mean"): (0.998, 3.068, 5.26, 1.054),
-        ("mlp", "mix"): (1.000, 3.637, 4.96, 0.992),
-        ("birnn", "mlp"): (0.708, 14.526, 8.34, 2.356),
-        ("birnn", "mean"): (1.000, 9.690, 5.68, 1.136),
-        ("birnn", "mix"): (0.992, 12.271, 5.38, 1.085),
-        ("mean", "mlp"): (0.440, 17.513, 7.31, 3.323),
-        ("mean", "birnn"): (0.760, 21.614, 7.61, 2.003),
-        ("mean", "mix"): (0.932, 20.138, 5.56, 1.193),
-        ("mix", "mlp"): (0.542, 15.306, 9.15, 3.376),
-        ("mix", "birnn"): (0.802, 20.432, 9.12, 2.274),
-        ("mix", "mean"): (0.932, 21.375, 6.11, 1.311),
-    },
-    "IV": {
-        ("mlp", "birnn"): (0.995, 3.190, 6.72, 1.126),
-        ("mlp", "mean"): (1.000, 2.779, 6.16, 1.027),
-        ("mlp", "mix"): (1.000, 2.570, 5.93, 0.988),
-        ("birnn", "mlp"): (0.867, 6.727, 11.50, 2.211),
-        ("birnn", "mean"): (1.000, 5.725, 6.68, 1.113),
-        ("birnn", "mix"): (1.000, 4.191, 5.96, 0.993),
-        ("mean", "mlp"): (0.378, 7.939, 8.20, 3.616),
-        ("mean", "birnn"): (0.943, 14.928, 8.20, 1.449),
-        ("mean", "mix"): (1.000, 7.745, 6.49, 1.082),
-        ("mix", "mlp"): (0.502, 7.365, 11.05, 3.669),
-        ("mix", "birnn"): (0.912, 16.275, 8.59, 1.570),
-        ("mix", "mean"): (0.985, 14.509, 8.05, 1.362),
-    },
-    "V": {
-        ("mlp", "birnn"): (0.998, 3.482, 4.86, 1.218),
-        ("mlp", "mean"): (1.000, 3.116, 3.94, 0.985),
-        ("mlp", "mix"): (1.000, 3.003, 3.74, 0.935),
-        ("birnn", "mean"): (0.835, 20.949, 4.39, 1.314),
-        ("birnn", "mix"): (0.915, 19.335, 4.04, 1.104),
-        ("mean", "birnn"): (0.390, 27.899, 3.59, 2.301),
-        ("mean", "mix"): (0.868, 22.598, 3.71, 1.069),
-        ("mix", "birnn"): (0.788, 21.943, 6.52, 2.070),
-        ("mix", "mean"): (0.893, 22.985, 4.53, 1.269),
-    },
-    "VI": {
-        ("mlp", "birnn"): (0.998, 3.263, 7.92, 1.322),
-        ("mlp", "mean"): (1.000, 2.899, 6.24, 1.040),
-        ("mlp", "mix"): (0.988, 6.881, 5.79, 0.976),
-        ("birnn", "mean"): (1.000, 7.523, 7.08, 1.180),
-        ("birnn", "mix"): (0.997, 13.058, 6.36, 1.064),
-        ("mean", "birnn"): (0.823, 15.803, 10.83, 2.192),
-        ("mean", "mix"): (0.940, 20.449, 6.78, 1.202),
-        ("mix", "birnn"): (0.738, 18.743, 11.04, 2.492),
-        ("mix", "mean"): (0.900, 20.796, 8.12, 1.504),
-    },
-}
-# Table -> (test scene, scale the pursuers were trained at, scale the evaders were trained at).
-TABLES = {
-    "II": ("16-4-4", "16-4-4", "16-4-4"),
-    "III": ("20-5-8", "20-5-8", "20-5-8"),
-    "IV": ("24-6-12", "24-6-12", "24-6-12"),
-    "V": ("16-4-4", "20-5-8", "16-4-4"),
-    "VI": ("24-6-12", "20-5-8", "24-6-12"),
-}
+from pe_mjx.config import ENCODERS
+from pe_mjx.paper import ENV_STEPS, PAPER, TABLES, paper_runs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,7 +52,7 @@ def _train(args: Args) -> None:
     budget = max(1, int(ENV_STEPS * args.fraction))
     scales = {scale for table in args.tables for scale in TABLES[table][1:]}
     for name, config in paper_runs(budget, args.backend).items():
-        if config.pursuer_encoder not in args.encoders or config.preset not in scales:
+        if config.pursuer.network.encoder not in args.encoders or config.preset not in scales:
             continue  # only the co-evolutions that the chosen tables use
         out = args.runs / name
         resume = (out / checkpoint.CHECKPOINT_DIR).exists()

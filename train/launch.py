@@ -7,15 +7,12 @@ the command can be repeated (for example in 10-minute chunks with --stop-after) 
 from __future__ import annotations
 
 import dataclasses
-import sys
 from pathlib import Path
+from typing import Literal
 
 import tyro
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from paper import ENV_STEPS, paper_runs
-
+from pe_mjx.paper import ENV_STEPS, paper_runs
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.run import train
 
@@ -30,14 +27,15 @@ class Args:
     """Run names to train (default: all twelve), e.g. mix-20-5-8."""
     env_steps: int = ENV_STEPS
     """Budget per run (the paper: 10 million)."""
-    backend: str = "mjx"
+    backend: Literal["mjx", "kinematic"] = "mjx"
+    seed: int = 0
     stop_after: int | None = None
     """Iterations per run in this call (then checkpoint and move on); None: to the end."""
 
 
 def main() -> None:
     args = tyro.cli(Args)
-    configs = paper_runs(args.env_steps, args.backend)
+    configs = paper_runs(args.env_steps, args.backend, args.seed)
     unknown = set(args.only) - set(configs)
     if unknown:
         raise SystemExit(f"unknown runs {sorted(unknown)}; known: {', '.join(configs)}")

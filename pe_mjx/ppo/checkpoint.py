@@ -5,7 +5,9 @@ A run directory holds `checkpoints/<iteration>/` with three orbax items:
     RNG keys as raw key data, counters), so a resumed run continues bit-for-bit;
   * `policy_<team>`: per learned team, its parameters and observation statistics (what
     `load_policy` reads, without rebuilding any env);
-  * `meta`: JSON with the train, env and network configs, counters and the format version.
+  * `meta`: JSON with the whole experiment config, the env and network configs it resolved to,
+    counters and the format version. Format 1 (before the experiment config) is still read for
+    playing its policies; only format 2 runs can be resumed.
 Orbax writes each step into a temporary directory and renames it when complete, so a kill during
 a save leaves the previous step loadable; `CheckpointManager` keeps the last `MAX_TO_KEEP`.
 """
@@ -20,11 +22,14 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from pe_mjx.agents import init_normalizer, learned_policy
 from pe_mjx.config import TEAMS, EnvConfig
 from pe_mjx.env import AGENT_FEATURES, OBSTACLE_FEATURES, OWN_FEATURES
 from pe_mjx.networks import NetworkConfig, make_network
+from pe_mjx.ppo.train import Trainer, TrainState
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_FORMATS = (1, 2)
 MAX_TO_KEEP = 3
 CHECKPOINT_DIR = "checkpoints"
 
@@ -78,7 +83,7 @@ def _manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:
     )
 
 
-def save(run_dir: str | Path, trainer: Any, train_state: Any) -> int:
+def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
     """Writes a checkpoint of `train_state` (blocking); returns its iteration."""
     run_dir = Path(run_dir)
     step = int(train_state.iteration)
@@ -90,7 +95,7 @@ def save(run_dir: str | Path, trainer: Any, train_state: Any) -> int:
         "format_version": FORMAT_VERSION,
         "iteration": step,
         "env_steps": int(train_state.env_steps),
-        "train_config": trainer.config.to_dict(),
+        "experiment": trainer.config.to_dict(),
         "env_config": trainer.env_config.to_dict(),
         "network_configs": {t: c.to_dict() for t, c in trainer.network_configs.items()},
         "num_actions": {t: trainer.env_config.team(t).num_actions for t in TEAMS},
@@ -132,14 +137,16 @@ def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
         raise CheckpointError(
             f"checkpoint {step} in {run_dir} is unreadable: {_short(err)}"
         ) from None
-    required = ("format_version", "env_config", "train_config", "network_configs", "num_actions")
+    required = ("format_version", "env_config", "network_configs", "num_actions")
     if not isinstance(meta, dict) or any(k not in meta for k in required):
         raise CheckpointError(f"checkpoint {step} in {run_dir} has malformed metadata")
-    if meta["format_version"] != FORMAT_VERSION:
+    if meta["format_version"] not in READABLE_FORMATS:
         raise CheckpointError(
-            f"checkpoint format {meta['format_version']} in {run_dir} is not supported "
-            f"(this pe-mjx reads format {FORMAT_VERSION})"
+            f"checkpoint format {meta['format_version']!r} in {run_dir} is not supported "
+            f"(this pe-mjx reads formats {READABLE_FORMATS})"
         )
+    if meta["format_version"] >= 2 and "experiment" not in meta:
+        raise CheckpointError(f"checkpoint {step} in {run_dir} has malformed metadata")
     meta["step"] = step
     return meta
 
@@ -166,8 +173,6 @@ def restore_policy_params(
     run_dir: str | Path, team: str
 ) -> tuple[Any, Any, NetworkConfig, dict[str, Any]]:
     """(network, {"params", "normalizer"}, network config, meta) of one team of a run."""
-    from pe_mjx.ppo.train import init_normalizer
-
     run_dir = Path(run_dir)
     meta = read_meta(run_dir)
     if team not in TEAMS:
@@ -220,8 +225,6 @@ def load_policy(
       A jittable `policy(obs, rng) -> int32 [...]`, obs being that team's observation dict with
       any leading dims ([A, ...] for one arena).
     """
-    from pe_mjx.ppo.train import learned_policy
-
     network, state, _, meta = restore_policy_params(run_dir, team)
     if env_config is not None:
         want = env_config.team(team).num_actions
@@ -234,8 +237,22 @@ def load_policy(
     return learned_policy(network, state["params"], state["normalizer"], deterministic)
 
 
-def restore_train_state(run_dir: str | Path, trainer: Any) -> Any:
-    """The full train state of the latest checkpoint, placed with the trainer's shardings."""
+def read_experiment(run_dir: str | Path) -> dict[str, Any]:
+    """The experiment config tree (a dict) saved with the latest checkpoint of a resumable run."""
+    meta = read_meta(run_dir)
+    if meta["format_version"] < 2:
+        raise CheckpointError(
+            f"{run_dir} was made by an older pe-mjx (checkpoint format {meta['format_version']}): "
+            f"its policies can be played and evaluated, the run cannot be resumed"
+        )
+    return meta["experiment"]
+
+
+def restore_train_state(run_dir: str | Path, trainer: Trainer) -> TrainState:
+    """The full train state of the latest checkpoint, placed with the trainer's shardings.
+
+    `trainer` is built from the run's saved experiment config.
+    """
     run_dir = Path(run_dir)
     step = _latest_step(run_dir)
     if not (run_dir / CHECKPOINT_DIR / str(step) / "train").is_dir():
@@ -243,7 +260,7 @@ def restore_train_state(run_dir: str | Path, trainer: Any) -> Any:
             f"checkpoint {step} in {run_dir} holds policies only (no train state): it can be "
             f"played and evaluated, not resumed"
         )
-    template = jax.eval_shape(trainer._init, jax.random.key(0))
+    template = trainer.abstract_state()
     abstract = jax.eval_shape(keys_to_data, template)
     try:
         with _manager(run_dir, create=False) as mngr:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -12,32 +13,102 @@ import jax
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from pe_mjx.agents import Policy
+from pe_mjx.experiment import BUILTIN_POLICIES, RESUMABLE, ExperimentConfig
 from pe_mjx.ppo import checkpoint
-from pe_mjx.ppo.train import TrainConfig, Trainer, TrainState
+from pe_mjx.ppo.train import Trainer, TrainState
+
+CONFIG_FILE = "config.json"
+
+
+def code_version() -> dict[str, Any]:
+    """The package version and, in a git checkout, the commit and whether the tree was dirty."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        out: dict[str, Any] = {"pe_mjx": version("pe-mjx")}
+    except PackageNotFoundError:
+        out = {"pe_mjx": "unknown"}
+    root = Path(__file__).resolve().parents[2]
+    if (root / ".git").exists():
+        try:
+            commit = subprocess.run(
+                ["git", "-C", str(root), "rev-parse", "HEAD"],
+                capture_output=True,
+                text=True,
+                timeout=10,
+                check=True,
+            ).stdout.strip()
+            dirty = subprocess.run(
+                ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                capture_output=True,
+                text=True,
+                timeout=10,
+                check=True,
+            ).stdout.strip()
+            out.update(git_commit=commit, git_dirty=bool(dirty))
+        except (OSError, subprocess.SubprocessError):
+            pass
+    return out
 
 
 def _write_config(run_dir: Path, trainer: Trainer) -> None:
+    """`config.json`: the whole experiment (rerun it with `pe-mjx train --config`), what it
+    resolved to, and the code version."""
     payload = {
-        "train_config": trainer.config.to_dict(),
+        "experiment": trainer.config.to_dict(),
         "env_config": trainer.env_config.to_dict(),
         "network_configs": {t: c.to_dict() for t, c in trainer.network_configs.items()},
+        "code_version": code_version(),
     }
-    tmp = run_dir / "config.json.tmp"
+    tmp = run_dir / f"{CONFIG_FILE}.tmp"
     tmp.write_text(json.dumps(payload, indent=2, sort_keys=True))
-    tmp.replace(run_dir / "config.json")
+    tmp.replace(run_dir / CONFIG_FILE)
 
 
-def resume_config(run_dir: str | Path, env_steps: int | None = None) -> TrainConfig:
-    """The config of an existing run, optionally with a new (larger) env-step budget."""
-    meta = checkpoint.read_meta(run_dir)
-    config = TrainConfig.from_dict(meta["train_config"])
-    if env_steps is not None and env_steps != config.env_steps:
-        config = TrainConfig.from_dict({**config.to_dict(), "env_steps": env_steps})
-    return config
+def saved_config(run_dir: str | Path) -> ExperimentConfig:
+    """The experiment config saved with a run's latest checkpoint."""
+    try:
+        return ExperimentConfig.from_dict(checkpoint.read_experiment(run_dir))
+    except ValueError as err:
+        if isinstance(err, checkpoint.CheckpointError):
+            raise
+        raise checkpoint.CheckpointError(f"{run_dir} holds an invalid config: {err}") from None
+
+
+def resume_config(
+    run_dir: str | Path, requested: ExperimentConfig | None = None
+) -> ExperimentConfig:
+    """The config a resumed run continues with: the saved one, with the `requested` changes to
+    the fields in `RESUMABLE` (budget, intervals) applied. Any other change is refused
+    (`ValueError` naming each field): it would change the game, the networks or PPO."""
+    saved = saved_config(run_dir)
+    if requested is None:
+        return saved
+    changed = saved.differences(requested)
+    refused = [f for f in changed if f not in RESUMABLE]
+    if refused:
+        raise ValueError(
+            f"--resume {run_dir} cannot change {', '.join(refused)}: a resumed run keeps its "
+            f"game, networks and PPO settings (only {', '.join(RESUMABLE)} may change); start a "
+            f"new run with another --out instead"
+        )
+    return saved.replace(**{f: getattr(requested, f) for f in changed})
+
+
+def resolve_opponents(config: ExperimentConfig) -> dict[str, Policy]:
+    """Frozen policies for the teams that do not learn and play a trained policy (a run
+    directory); "scripted" and "random" are built by the trainer."""
+    opponents = {}
+    for team in ("pursuer", "evader"):
+        spec = config.team(team).policy
+        if spec != "learn" and spec not in BUILTIN_POLICIES:
+            opponents[team] = checkpoint.load_policy(spec, team=team, env_config=config.env)
+    return opponents
 
 
 def train(
-    config: TrainConfig,
+    config: ExperimentConfig,
     out: str | Path,
     resume: bool = False,
     progress: bool = True,
@@ -58,7 +129,7 @@ def train(
     from tensorboardX import SummaryWriter
 
     run_dir = Path(out)
-    trainer = Trainer(config)
+    trainer = Trainer(config, opponents=resolve_opponents(config))
     if resume:
         state = checkpoint.restore_train_state(run_dir, trainer)
     else:

@@ -22,7 +22,6 @@ are replicated and XLA inserts the gradient all-reduce, so the same code runs on
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -34,17 +33,15 @@ from brax.training.acme import running_statistics
 from brax.training.agents.ppo.losses import compute_gae
 from flax import struct
 
-from pe_mjx.config import TEAMS
+from pe_mjx.agents import Policy, init_normalizer, learned_policy, normalize_obs, update_normalizer
+from pe_mjx.config import TEAMS, other_team
 from pe_mjx.env import AutoResetWrapper, PursuitEvasionEnv, State
-from pe_mjx.networks import greedy_actions, log_prob, make_network, sample_actions
+from pe_mjx.episodes import play_episodes
+from pe_mjx.experiment import BUILTIN_POLICIES as FIXED_POLICIES
+from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.networks import log_prob, make_network, sample_actions
 from pe_mjx.policies import make_policy
-from pe_mjx.ppo.config import TrainConfig
 from pe_mjx.ppo.losses import TeamBatch, ppo_loss
-
-ENTITY_KEYS = ("own", "teammates", "opponents", "obstacles")
-ENTITY_MASKS = {"teammates": "teammate_mask", "opponents": "opponent_mask"}
-ENTITY_MASKS["obstacles"] = "obstacle_mask"
-FIXED_POLICIES = ("scripted", "random")
 
 
 @struct.dataclass
@@ -65,91 +62,47 @@ class TrainState:
     env_steps: jax.Array  # int32 [] (float64 is off by default; 2^31 env steps is plenty)
 
 
-def init_normalizer(obs: dict[str, jax.Array]) -> dict[str, Any]:
-    """One running statistic per entity type, over its feature axis only."""
-    return {
-        k: running_statistics.init_state(jax.ShapeDtypeStruct(obs[k].shape[-1:], jnp.float32))
-        for k in ENTITY_KEYS
-    }
-
-
-def normalize_obs(obs: dict[str, jax.Array], normalizer: dict[str, Any]) -> dict[str, jax.Array]:
-    out = dict(obs)
-    for k in ENTITY_KEYS:
-        out[k] = running_statistics.normalize(obs[k], normalizer[k], max_abs_value=5.0)
-    return out
-
-
-def update_normalizer(
-    normalizer: dict[str, Any], obs: dict[str, jax.Array], valid: jax.Array
-) -> dict[str, Any]:
-    """Updates each entity type's statistics with the observations of valid agents.
-
-    Args:
-      obs: observation dict with leading dims [..., A] (e.g. [T, B, A]).
-      valid: bool [..., A], the agents whose transitions count.
-    """
-    new = dict(normalizer)
-    for k in ENTITY_KEYS:
-        x = obs[k]
-        if x.size == 0:
-            continue
-        weights = valid.astype(jnp.float32)
-        if k in ENTITY_MASKS:
-            weights = weights[..., None] * obs[ENTITY_MASKS[k]]
-        new[k] = running_statistics.update(normalizer[k], x, weights=weights)
-    return new
-
-
-Policy = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
-
-
-def learned_policy(
-    network: Any, params: Any, normalizer: dict[str, Any], deterministic: bool = False
-) -> Policy:
-    """A jittable `(obs, rng) -> actions` from network parameters and observation statistics.
-
-    `obs` is one team's observation dict with any leading dims ([A, ...] for one arena).
-    """
-
-    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
-        logits, _ = network.apply(params, normalize_obs(obs, normalizer))
-        return greedy_actions(logits) if deterministic else sample_actions(logits, rng)
-
-    return policy
-
-
 class Trainer:
-    """Builds the jitted training iteration and evaluation for one `TrainConfig`."""
+    """Builds the jitted training iteration and evaluation for one `ExperimentConfig`.
 
-    def __init__(self, config: TrainConfig, mesh: jax.sharding.Mesh | None = None):
+    `opponents` holds a ready policy for each team that does not learn (built by the caller from
+    the config's policy spec, e.g. with `pe_mjx.ppo.run.resolve_opponents`); "scripted" and
+    "random" are built here when not given.
+    """
+
+    def __init__(
+        self,
+        config: ExperimentConfig,
+        opponents: dict[str, Policy] | None = None,
+        mesh: jax.sharding.Mesh | None = None,
+    ):
         self.config = config
-        self.env_config = config.env_config()
+        self.env_config = config.env
         self.env = AutoResetWrapper(PursuitEvasionEnv(self.env_config, backend=config.backend))
         self.eval_env = PursuitEvasionEnv(self.env_config, backend=config.backend)
-        self.learned = tuple(t for t in TEAMS if getattr(config, t) == "learn")
-        self.network_configs = {t: config.network_config(t, self.env_config) for t in self.learned}
+        self.learned = config.learned
+        self.network_configs = {t: config.network(t) for t in self.learned}
         self.networks = {
             t: make_network(self.network_configs[t], self.env_config.team(t).num_actions)
             for t in self.learned
         }
-        self.fixed: dict[str, Policy] = {}
+        self.fixed: dict[str, Policy] = dict(opponents or {})
         for team in TEAMS:
-            mode = getattr(config, team)
-            if mode == "learn":
+            spec = config.team(team).policy
+            if team in self.learned or team in self.fixed:
                 continue
-            if mode in FIXED_POLICIES:
-                self.fixed[team] = make_policy(mode, self.env_config, team)
-            else:
-                from pe_mjx.ppo.checkpoint import load_policy
-
-                self.fixed[team] = load_policy(mode, team=team, env_config=self.env_config)
+            if spec not in FIXED_POLICIES:
+                raise ValueError(
+                    f"the {team} policy {spec!r} must be handed in as an opponent "
+                    f"(Trainer builds only {FIXED_POLICIES})"
+                )
+            self.fixed[team] = make_policy(spec, self.env_config, team)
         self.scripted = {t: make_policy("scripted", self.env_config, t) for t in TEAMS}
         self.mesh = mesh or jax.sharding.Mesh(np.array(jax.devices()), ("data",))
         n_dev = self.mesh.devices.size
-        if config.num_envs % n_dev:
+        if config.ppo.num_envs % n_dev:
             raise ValueError(
-                f"invalid config: num_envs={config.num_envs} must be a multiple of the "
+                f"invalid config: ppo.num_envs={config.ppo.num_envs} must be a multiple of the "
                 f"{n_dev} devices"
             )
         if config.eval_envs % n_dev:
@@ -159,17 +112,17 @@ class Trainer:
         )
         self.replicated = jax.sharding.NamedSharding(self.mesh, jax.sharding.PartitionSpec())
         self.optimizer = optax.chain(
-            optax.clip_by_global_norm(config.max_grad_norm),
+            optax.clip_by_global_norm(config.ppo.max_grad_norm),
             optax.adam(self._schedule()),
         )
 
     def _schedule(self) -> optax.Schedule | float:
-        cfg = self.config
-        if cfg.lr_schedule == "constant":
-            return cfg.learning_rate
-        updates_per_iter = cfg.update_epochs * cfg.num_minibatches
+        ppo = self.config.ppo
+        if ppo.lr_schedule == "constant":
+            return ppo.learning_rate
+        updates_per_iter = ppo.update_epochs * ppo.num_minibatches
         return optax.linear_schedule(
-            cfg.learning_rate, 0.0, transition_steps=cfg.num_iterations * updates_per_iter
+            ppo.learning_rate, 0.0, transition_steps=self.config.num_iterations * updates_per_iter
         )
 
     # ------------------------------------------------------------------ init
@@ -181,9 +134,13 @@ class Trainer:
         seed = self.config.seed if seed is None else seed
         return jax.jit(self._init)(jax.random.key(seed))
 
+    def abstract_state(self) -> TrainState:
+        """Shapes and dtypes of a `TrainState` (for restoring a checkpoint), computing nothing."""
+        return jax.eval_shape(self._init, jax.random.key(0))
+
     def _init(self, rng: jax.Array) -> TrainState:
         rng, env_rng, *net_rngs = jax.random.split(rng, 2 + len(TEAMS))
-        env_keys = jax.random.split(env_rng, self.config.num_envs)
+        env_keys = jax.random.split(env_rng, self.config.ppo.num_envs)
         env_state = self._shard_batch(jax.vmap(self.env.reset)(env_keys))
         teams = {}
         for team, net_rng in zip(TEAMS, net_rngs, strict=True):
@@ -235,7 +192,7 @@ class Trainer:
             next_state = self._shard_batch(next_state)
             data = {}
             for team in self.learned:
-                scale = getattr(self.config, f"{team}_reward_scale")
+                scale = self.config.team(team).reward_scale
                 valid = next_state.info["valid"][team]
                 active_after = next_state.info["active"][team]
                 data[team] = {
@@ -254,13 +211,13 @@ class Trainer:
             data["done"] = next_state.done
             return next_state, data
 
-        keys = jax.random.split(rng, self.config.unroll_length)
+        keys = jax.random.split(rng, self.config.ppo.unroll_length)
         return jax.lax.scan(step, ts.env_state, keys)
 
     # ------------------------------------------------------------------ update
 
     def _team_batch(self, team: str, ts: TeamState, data: dict, bootstrap: jax.Array) -> TeamBatch:
-        cfg = self.config
+        cfg = self.config.ppo
         advantages = compute_gae(
             truncation=data["truncation"],
             termination=data["termination"],
@@ -290,7 +247,7 @@ class Trainer:
     def _update_team(
         self, team: str, ts: TeamState, batch: TeamBatch, rng: jax.Array
     ) -> tuple[TeamState, dict[str, jax.Array]]:
-        cfg = self.config
+        cfg = self.config.ppo
         network = self.networks[team]
         loss_fn = functools.partial(
             ppo_loss,
@@ -372,12 +329,10 @@ class Trainer:
 
     def evaluate(self, ts: TrainState, rng: jax.Array) -> dict[str, jax.Array]:
         """Each learned team against the scripted opponent, `eval_envs` full episodes each."""
-        from pe_mjx.episodes import play_episodes
-
         metrics = {}
         current = self.policies(ts)
         for team in self.learned:
-            other = "evader" if team == "pursuer" else "pursuer"
+            other = other_team(team)
             pair = {team: current[team], other: self.scripted[other]}
             rng, key = jax.random.split(rng)
             keys = jax.random.split(key, self.config.eval_envs)

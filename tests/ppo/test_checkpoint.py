@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -14,9 +15,9 @@ import pytest
 from tiny_config import tiny
 
 import pe_mjx
+from pe_mjx.experiment import ExperimentConfig
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.checkpoint import CheckpointError, load_policy
-from pe_mjx.ppo.config import TrainConfig
 from pe_mjx.ppo.run import resume_config, train
 
 CONFIG = tiny()
@@ -130,7 +131,7 @@ def test_kill_during_save_keeps_previous_checkpoint(tmp_path):
     """Kill a real training process while it saves; the run stays loadable."""
     script = (
         "import sys\n"
-        "from pe_mjx.ppo.config import TrainConfig\n"
+        "from pe_mjx.experiment import ExperimentConfig\n"
         "from pe_mjx.ppo.run import train\n"
         "from pe_mjx.ppo import checkpoint\n"
         "orig = checkpoint.save\n"
@@ -143,7 +144,7 @@ def test_kill_during_save_keeps_previous_checkpoint(tmp_path):
         "    return orig(run_dir, trainer, state)\n"
         "import pe_mjx.ppo.run as run_mod\n"
         "run_mod.checkpoint.save = save\n"
-        f"cfg = TrainConfig(**{CONFIG.to_dict()!r})\n"
+        f"cfg = ExperimentConfig.from_dict({CONFIG.to_dict()!r})\n"
         "train(cfg, sys.argv[1], progress=False)\n"
     )
     out = tmp_path / "killed"
@@ -164,13 +165,13 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
         "4-1-2",
         "--backend",
         "kinematic",
-        "--evader",
+        "--evader.policy",
         "scripted",
-        "--pursuer-encoder",
+        "--pursuer.network.encoder",
         "mean",
-        "--num-envs",
+        "--ppo.num-envs",
         "8",
-        "--unroll-length",
+        "--ppo.unroll-length",
         "8",
         "--env-steps",
         "256",
@@ -180,9 +181,9 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
         "4",
         "--checkpoint-every",
         "1",
-        "--width",
+        "--pursuer.network.width",
         "16",
-        "--hidden",
+        "--pursuer.network.hidden",
         "32",
         "--no-progress",
         "--out",
@@ -193,6 +194,25 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
     )
     assert first.returncode == 0, first.stderr[-3000:]
     assert checkpoint.read_meta(out)["iteration"] == 2
+    saved = json.loads((out / "config.json").read_text())
+    assert saved["experiment"]["pursuer"]["network"]["encoder"] == "mean"
+    assert saved["code_version"]["pe_mjx"]
+    # A resume that would change the game is refused, and nothing is written.
+    refused = subprocess.run(
+        [*exe, "--resume", str(out), "--env.reward.capture", "50"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert refused.returncode == 2
+    assert "cannot change env.reward.capture" in refused.stderr
+    assert "Traceback" not in refused.stderr
+    assert checkpoint.read_meta(out)["iteration"] == 2
+    assert json.loads((out / "config.json").read_text()) == saved
+    # The same run can be reproduced from its config file alone.
+    from pe_mjx.experiment import read_config_file
+
+    assert read_config_file(out / "config.json") == ExperimentConfig.from_dict(saved["experiment"])
     again = subprocess.run(
         [*exe, "--resume", str(out), "--no-progress"], capture_output=True, text=True, timeout=900
     )
@@ -244,8 +264,10 @@ def test_a_team_can_be_frozen_at_a_checkpoint(runs):
     from pe_mjx.ppo.train import Trainer
 
     root, _, _ = runs
-    config = TrainConfig.from_dict({**CONFIG.to_dict(), "evader": str(root / "straight")})
-    trainer = Trainer(config)
+    from pe_mjx.ppo.run import resolve_opponents
+
+    config = CONFIG.override({"evader.policy": str(root / "straight")})
+    trainer = Trainer(config, opponents=resolve_opponents(config))
     assert trainer.learned == ("pursuer",)
     state = trainer.init()
     new, metrics = jax.jit(trainer.iteration)(state)

@@ -12,9 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tiny_config import TINY, tiny
+from tiny_config import tiny
 
-from pe_mjx.ppo.config import TrainConfig
+from pe_mjx.experiment import default_config
 from pe_mjx.ppo.train import Trainer
 
 
@@ -24,14 +24,15 @@ def params_close(a, b, atol=0.0) -> bool:
 
 
 def test_config_validation_names_the_field():
-    with pytest.raises(ValueError, match="pursuer_encoder"):
-        TrainConfig(pursuer_encoder="transformer")
+    base = default_config("4-1-2")
+    with pytest.raises(ValueError, match=r"pursuer\.network\.encoder"):
+        base.override({"pursuer.network.encoder": "transformer"})
     with pytest.raises(ValueError, match="num_envs"):
-        TrainConfig(num_envs=0)
+        base.override({"ppo.num_envs": 0})
     with pytest.raises(ValueError, match="both fixed"):
-        TrainConfig(pursuer="scripted", evader="random")
+        base.override({"pursuer.policy": "scripted", "evader.policy": "random"})
     with pytest.raises(ValueError, match="unknown preset"):
-        TrainConfig(preset="3-3-3")
+        default_config("3-3-3")
 
 
 def test_iteration_updates_both_teams_and_reports_every_term():
@@ -57,7 +58,7 @@ def test_iteration_updates_both_teams_and_reports_every_term():
 
 
 def test_fixed_opponent_is_not_trained():
-    trainer = Trainer(tiny(evader="scripted", pursuer_encoder="mean"))
+    trainer = Trainer(tiny(**{"evader.policy": "scripted", "pursuer.network.encoder": "mean"}))
     assert trainer.learned == ("pursuer",)
     state = trainer.init()
     new, metrics = jax.jit(trainer.iteration)(state)
@@ -74,16 +75,17 @@ def test_pursuers_learn_to_capture_the_scripted_evader():
     The margin of 0.2 over 128 Bernoulli episodes is > 5 standard errors. Learning is
     seed-dependent at this budget (seeds 1 and 2 reached 0.64 and 0.02), so the seed is fixed.
     """
-    config = TrainConfig(
-        preset="4-1-2",
-        backend="kinematic",
-        evader="scripted",
-        num_envs=32,
-        unroll_length=32,
-        env_steps=32 * 32 * 160,
-        learning_rate=1e-3,
-        eval_envs=128,
-        eval_every=0,
+    config = default_config("4-1-2").override(
+        {
+            "backend": "kinematic",
+            "evader.policy": "scripted",
+            "ppo.num_envs": 32,
+            "ppo.unroll_length": 32,
+            "env_steps": 32 * 32 * 160,
+            "ppo.learning_rate": 1e-3,
+            "eval_envs": 128,
+            "eval_every": 0,
+        }
     )
     trainer = Trainer(config)
     state = trainer.init()
@@ -104,10 +106,10 @@ def test_two_devices_match_one_device(tmp_path):
         """
         import json, sys
         import jax, jax.numpy as jnp, numpy as np
-        from pe_mjx.ppo.config import TrainConfig
+        from pe_mjx.experiment import ExperimentConfig
         from pe_mjx.ppo.train import Trainer
         assert len(jax.devices()) == 2, jax.devices()
-        cfg = TrainConfig(**json.loads(sys.argv[1]))
+        cfg = ExperimentConfig.from_dict(json.loads(sys.argv[1]))
         out = {}
         for n in (1, 2):
             mesh = jax.sharding.Mesh(np.array(jax.devices()[:n]), ("data",))
@@ -124,7 +126,7 @@ def test_two_devices_match_one_device(tmp_path):
         """
     )
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
-    cfg = {**TINY, "env_steps": 8 * 8 * 2}
+    cfg = tiny(env_steps=8 * 8 * 2).to_dict()
     result = subprocess.run(
         [sys.executable, "-c", script, json.dumps(cfg)],
         capture_output=True,

@@ -73,15 +73,17 @@ def tiny_run(tmp_path_factory):
 
     config = tiny(
         preset="2-1-1",
-        evader="scripted",
-        env_steps=24,
-        num_envs=2,
-        unroll_length=4,
-        num_minibatches=1,
-        checkpoint_every=1,
-        width=8,
-        num_heads=2,
-        hidden=16,
+        **{
+            "evader.policy": "scripted",
+            "env_steps": 24,
+            "ppo.num_envs": 2,
+            "ppo.unroll_length": 4,
+            "ppo.num_minibatches": 1,
+            "checkpoint_every": 1,
+            "pursuer.network.width": 8,
+            "pursuer.network.num_heads": 2,
+            "pursuer.network.hidden": 16,
+        },
     )
     viewer = start_viewer(training=True, port=0, verbose=False)
     run_dir = tmp_path_factory.mktemp("train") / "run"

@@ -1,0 +1,350 @@
+"""`ExperimentConfig`: one frozen tree that states a whole training run.
+
+    ExperimentConfig
+      env: EnvConfig            the game (arena, teams, rewards, ...), a preset by default
+      pursuer / evader: TeamTraining
+        policy                  "learn", or a fixed opponent ("scripted", "random", a run
+                                directory or a shipped policy name) played frozen
+        network: NetworkConfig  that team's actor-critic
+        reward_scale            rewards are multiplied by this before GAE
+      ppo: PPOConfig            the optimiser and rollout settings
+      backend, env_steps, seed, eval_*, checkpoint_every   the run
+
+`pe-mjx train` exposes every field as a nested flag (`--env.reward.capture 50`,
+`--pursuer.network.encoder mean`, `--ppo.learning-rate 1e-4`) and reads a whole or partial tree
+from `--config run.json` / `.yaml`; a preset is the named default of `env`. Every run directory
+holds its tree in `config.json`, and `--resume` continues from it, refusing any change but those in
+`RESUMABLE` (the budget and the logging intervals).
+
+Kept free of JAX and flax imports so that the CLI builds its flags cheaply.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+from pe_mjx.config import (
+    ENCODERS,
+    PRESETS,
+    TEAMS,
+    EnvConfig,
+    check_finite,
+    from_dict,
+    get_preset,
+    merge,
+    other_team,
+    to_dict,
+)
+
+Encoder = Literal["mix", "mean", "birnn", "mlp"]
+Backend = Literal["mjx", "kinematic"]
+assert Encoder.__args__ == ENCODERS  # type: ignore[attr-defined]
+
+# Fields `--resume` may change: the budget and how often the run logs, evaluates and saves.
+RESUMABLE = ("env_steps", "eval_every", "eval_envs", "checkpoint_every")
+BUILTIN_POLICIES = ("scripted", "random")
+
+
+def _check(cond: bool, field: str, msg: str) -> None:
+    if not cond:
+        raise ValueError(f"invalid config: {field} {msg}")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class NetworkConfig:
+    """Actor-critic architecture of one team (SPEC 3.1)."""
+
+    encoder: Encoder = "mix"
+    """State encoder: mix (Mix-Attention), mean (Mean-Embedding), birnn or mlp."""
+    width: int = 32
+    """Embedding width of the encoders (token size, GRU hidden size)."""
+    num_heads: int = 4
+    """Mix-Attention heads; must divide width."""
+    hidden: int = 64
+    """Units of each of the two layers of the policy and value heads."""
+    nearest_k: int | None = None
+    """Keep only the k nearest entities of each type (None: all, as in the paper)."""
+    mlp_counts: tuple[int, int, int] | None = None
+    """MLP only: the (teammates, opponents, obstacles) counts it was built for; other counts are
+    zero-padded or truncated to these. Set by the trainer from the training scene."""
+    mix_queries: Literal["own", "all"] = "own"
+    """MIX only: "own", the agent's own token attends over all tokens (O(N) per agent); "all",
+    full self-attention over all tokens, pooled (O(N^2) per agent, 5-10x slower on CPU)."""
+
+    def __post_init__(self) -> None:
+        _check(self.encoder in ENCODERS, "encoder", f"must be one of {ENCODERS}")
+        _check(self.width >= 1, "width", f"must be >= 1, got {self.width}")
+        _check(self.num_heads >= 1, "num_heads", f"must be >= 1, got {self.num_heads}")
+        _check(
+            self.width % self.num_heads == 0,
+            "num_heads",
+            f"must divide width={self.width}, got {self.num_heads}",
+        )
+        _check(self.hidden >= 1, "hidden", f"must be >= 1, got {self.hidden}")
+        _check(
+            self.nearest_k is None or self.nearest_k >= 1,
+            "nearest_k",
+            f"must be None or >= 1, got {self.nearest_k}",
+        )
+        _check(self.mix_queries in ("own", "all"), "mix_queries", "must be own or all")
+        if self.mlp_counts is not None:
+            counts = tuple(self.mlp_counts)
+            _check(
+                len(counts) == 3 and all(isinstance(c, int) and c >= 0 for c in counts),
+                "mlp_counts",
+                f"must be three ints >= 0 (teammates, opponents, obstacles), got {counts!r}",
+            )
+            object.__setattr__(self, "mlp_counts", counts)
+
+    def for_scene(self, env: EnvConfig, team: str) -> NetworkConfig:
+        """This config with `mlp_counts` taken from the scene `env` (MLP only)."""
+        if self.encoder != "mlp":
+            return dataclasses.replace(self, mlp_counts=None)
+        own, other = env.team(team).num_agents, env.team(other_team(team)).num_agents
+        counts = (own - 1, other, env.arena.num_obstacles)
+        return dataclasses.replace(self, mlp_counts=counts)
+
+    def replace(self, **changes: Any) -> NetworkConfig:
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return to_dict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> NetworkConfig:
+        return from_dict(cls, d)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class PPOConfig:
+    """Independent PPO, one parameter set per learned team (Brax's PPO building blocks)."""
+
+    num_envs: int = 64
+    """Arenas stepped in parallel."""
+    unroll_length: int = 32
+    """Control steps per arena per iteration."""
+    update_epochs: int = 2
+    """PPO passes over each iteration's data."""
+    num_minibatches: int = 4
+    """Minibatches per PPO pass (each must hold at least one arena-step)."""
+    learning_rate: float = 3e-4
+    """Adam step size (positive)."""
+    lr_schedule: Literal["linear", "constant"] = "linear"
+    """linear: decay to 0 over the budget; constant."""
+    gamma: float = 0.99
+    """Discount, in (0, 1]."""
+    gae_lambda: float = 0.95
+    """GAE lambda, in (0, 1]."""
+    clip_epsilon: float = 0.2
+    """PPO ratio clip (positive)."""
+    value_coef: float = 0.5
+    """Weight of the value loss."""
+    entropy_coef: float = 0.01
+    """Weight of the entropy bonus."""
+    max_grad_norm: float = 0.5
+    """Global gradient-norm clip (positive)."""
+
+    def __post_init__(self) -> None:
+        check_finite(self, "ppo.")
+        for name in ("num_envs", "unroll_length", "update_epochs", "num_minibatches"):
+            value = getattr(self, name)
+            _check(value >= 1, f"ppo.{name}", f"must be >= 1, got {value}")
+        samples = self.num_envs * self.unroll_length
+        _check(
+            self.num_minibatches <= samples,
+            "ppo.num_minibatches",
+            f"must be <= num_envs * unroll_length = {samples} (a minibatch needs at least one "
+            f"arena-step), got {self.num_minibatches}",
+        )
+        for name in ("learning_rate", "clip_epsilon", "max_grad_norm"):
+            _check(
+                getattr(self, name) > 0, f"ppo.{name}", f"must be > 0, got {getattr(self, name)}"
+            )
+        for name in ("gamma", "gae_lambda"):
+            value = getattr(self, name)
+            _check(0 < value <= 1, f"ppo.{name}", f"must be in (0, 1], got {value}")
+        for name in ("value_coef", "entropy_coef"):
+            _check(
+                getattr(self, name) >= 0, f"ppo.{name}", f"must be >= 0, got {getattr(self, name)}"
+            )
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TeamTraining:
+    """How one team takes part in a run."""
+
+    policy: str = "learn"
+    """learn; or a fixed opponent played frozen: scripted, random, a run directory or a shipped
+    policy name (assets/policies)."""
+    network: NetworkConfig = dataclasses.field(default_factory=NetworkConfig)
+    """The team's actor-critic (used when policy is learn)."""
+    reward_scale: float = 0.1
+    """The team's rewards are multiplied by this before GAE (positive)."""
+
+    def __post_init__(self) -> None:
+        check_finite(self)
+        _check(bool(self.policy), "policy", "must be learn, scripted, random or a run")
+        _check(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
+
+    @property
+    def learns(self) -> bool:
+        return self.policy == "learn"
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ExperimentConfig:
+    """A whole co-evolution run (or one team against a fixed opponent); see the module doc."""
+
+    env: EnvConfig = dataclasses.field(default_factory=lambda: get_preset("20-5-8"))
+    """The game; `--preset` picks its defaults."""
+    pursuer: TeamTraining = dataclasses.field(
+        default_factory=lambda: TeamTraining(reward_scale=0.01)
+    )
+    """The pursuers (their f_p shaping is ~10 per step and evader, hence the smaller scale)."""
+    evader: TeamTraining = dataclasses.field(default_factory=TeamTraining)
+    """The evaders."""
+    ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
+    backend: Backend = "mjx"
+    """Env backend: mjx (MuJoCo MJX physics) or kinematic (exact unicycle arcs, faster)."""
+    env_steps: int = 10_000_000
+    """Training budget in env steps (one control step of one arena)."""
+    seed: int = 0
+    """Seed of the parameters, the arenas and the sampled actions (0 <= seed < 2**32)."""
+    eval_every: int = 20
+    """Evaluate against the scripted opponents every this many iterations (0: never)."""
+    eval_envs: int = 16
+    """Arenas per evaluation (each runs one full episode)."""
+    checkpoint_every: int = 20
+    """Save a checkpoint every this many iterations (and at the end)."""
+
+    def __post_init__(self) -> None:
+        _check(
+            self.pursuer.learns or self.evader.learns,
+            "pursuer.policy / evader.policy",
+            "are both fixed; nothing to learn",
+        )
+        _check(self.env_steps >= 1, "env_steps", f"must be >= 1, got {self.env_steps}")
+        _check(0 <= self.seed < 2**32, "seed", f"must be in [0, 2**32), got {self.seed}")
+        _check(self.eval_every >= 0, "eval_every", f"must be >= 0, got {self.eval_every}")
+        _check(self.eval_envs >= 1, "eval_envs", f"must be >= 1, got {self.eval_envs}")
+        _check(
+            self.checkpoint_every >= 1,
+            "checkpoint_every",
+            f"must be >= 1, got {self.checkpoint_every}",
+        )
+
+    # ------------------------------------------------------------------ derived
+
+    @property
+    def preset(self) -> str:
+        """The env's name (the preset it came from, unless renamed)."""
+        return self.env.name
+
+    def team(self, name: str) -> TeamTraining:
+        _check(name in TEAMS, "team", f"must be one of {TEAMS}, got {name!r}")
+        return getattr(self, name)
+
+    @property
+    def learned(self) -> tuple[str, ...]:
+        return tuple(t for t in TEAMS if self.team(t).learns)
+
+    def network(self, team: str) -> NetworkConfig:
+        """The team's network config for this run's scene (MLP counts filled in)."""
+        return self.team(team).network.for_scene(self.env, team)
+
+    @property
+    def steps_per_iteration(self) -> int:
+        return self.ppo.num_envs * self.ppo.unroll_length
+
+    @property
+    def num_iterations(self) -> int:
+        return -(-self.env_steps // self.steps_per_iteration)
+
+    # ------------------------------------------------------------------ (de)serialisation
+
+    def replace(self, **changes: Any) -> ExperimentConfig:
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return to_dict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ExperimentConfig:
+        return from_dict(cls, d)
+
+    def override(self, changes: dict[str, Any]) -> ExperimentConfig:
+        """This config with fields changed by dotted path, validated as a whole:
+        `config.override({"env.reward.capture": 50.0, "ppo.num_envs": 8})`."""
+        tree = self.to_dict()
+        for path, value in changes.items():
+            node = tree
+            *parents, leaf = path.split(".")
+            for part in parents:
+                if not isinstance(node.get(part), dict):
+                    raise ValueError(f"invalid config: unknown field {path}")
+                node = node[part]
+            if leaf not in node:
+                raise ValueError(f"invalid config: unknown field {path}")
+            node[leaf] = value
+        return ExperimentConfig.from_dict(tree)
+
+    def differences(self, other: ExperimentConfig) -> list[str]:
+        """Dotted paths of the fields where `other` differs, e.g. ["env.reward.capture"]."""
+        return _diff(self.to_dict(), other.to_dict(), "")
+
+
+def _diff(a: Any, b: Any, prefix: str) -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for key in sorted(set(a) | set(b)):
+            out += _diff(a.get(key), b.get(key), f"{prefix}{key}.")
+        return out
+    return [] if a == b else [prefix.rstrip(".")]
+
+
+def get_path(config: Any, path: str) -> Any:
+    """The value at a dotted field path of a config tree (`"env.reward.capture"`)."""
+    for part in path.split("."):
+        config = getattr(config, part)
+    return config
+
+
+def default_config(preset: str = "20-5-8") -> ExperimentConfig:
+    """The default tree for a preset."""
+    return ExperimentConfig(env=get_preset(preset))
+
+
+def read_config_file(path: str | Path, preset: str | None = None) -> ExperimentConfig:
+    """An experiment from a JSON or YAML file: a whole tree or a partial one over the preset's
+    defaults (the file's `env.name`, else `preset`, else 20-5-8). A run directory's `config.json`
+    (which holds the tree under "experiment") is accepted as it is."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise ValueError(f"--config {path}: cannot read: {err.__class__.__name__}") from None
+    if len(text) > 1_000_000:
+        raise ValueError(f"--config {path}: larger than 1 MB; not a config file")
+    try:
+        if path.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text)
+        else:
+            data = json.loads(text)
+    except Exception as err:  # json/yaml parse errors
+        first = str(err).splitlines()[0] if str(err) else err.__class__.__name__
+        raise ValueError(f"--config {path}: not valid JSON/YAML: {first}") from None
+    if isinstance(data, dict) and "experiment" in data:
+        data = data["experiment"]
+    if not isinstance(data, dict):
+        raise ValueError(f"--config {path}: must hold an object (a config tree)")
+    env_name = data.get("env", {}).get("name") if isinstance(data.get("env"), dict) else None
+    base_preset = env_name if env_name in PRESETS else (preset or "20-5-8")
+    try:
+        return ExperimentConfig.from_dict(merge(default_config(base_preset).to_dict(), data))
+    except ValueError as err:
+        raise ValueError(f"--config {path}: {err}") from None
