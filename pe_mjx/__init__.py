@@ -1,5 +1,6 @@
 """pe-mjx: large-scale multi-agent pursuit-evasion under collision avoidance in MuJoCo MJX."""
 
+from pe_mjx import _quiet  # noqa: F401  (first: silences mjx's import-time print)
 from pe_mjx.config import PRESETS, ArenaConfig, EnvConfig, RewardConfig, TeamConfig, get_preset
 from pe_mjx.env import AutoResetWrapper, PursuitEvasionEnv, State, World, make
 

@@ -27,6 +27,7 @@ from pe_mjx.config import TEAMS, EnvConfig
 from pe_mjx.env import AGENT_FEATURES, OBSTACLE_FEATURES, OWN_FEATURES
 from pe_mjx.networks import NetworkConfig, make_network
 from pe_mjx.ppo.train import Trainer, TrainState
+from pe_mjx.shipped import resolve_run
 
 FORMAT_VERSION = 2
 READABLE_FORMATS = (1, 2)
@@ -127,8 +128,9 @@ def _latest_step(run_dir: Path) -> int:
 
 
 def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
-    """The JSON metadata of the latest (or given) checkpoint, validated."""
-    run_dir = Path(run_dir)
+    """The JSON metadata of the latest (or given) checkpoint, validated. `run_dir` may also be
+    a shipped policy's name (`pe_mjx.shipped`)."""
+    run_dir = resolve_run(run_dir)
     step = _latest_step(run_dir) if step is None else step
     try:
         with _manager(run_dir, create=False) as mngr:
@@ -172,8 +174,9 @@ def dummy_obs(env_config: EnvConfig, team: str) -> dict[str, jax.Array]:
 def restore_policy_params(
     run_dir: str | Path, team: str
 ) -> tuple[Any, Any, NetworkConfig, dict[str, Any]]:
-    """(network, {"params", "normalizer"}, network config, meta) of one team of a run."""
-    run_dir = Path(run_dir)
+    """(network, {"params", "normalizer"}, network config, meta) of one team of a run (a run
+    directory or a shipped policy's name)."""
+    run_dir = resolve_run(run_dir)
     meta = read_meta(run_dir)
     if team not in TEAMS:
         raise CheckpointError(f"unknown team {team!r}; expected one of {TEAMS}")
@@ -216,7 +219,8 @@ def load_policy(
     """Rebuilds a team's policy from a run directory alone.
 
     Args:
-      run_dir: a `pe-mjx train --out` directory.
+      run_dir: a `pe-mjx train --out` directory, or the name of a shipped policy
+        ("mix-20-5-8"; `pe_mjx.shipped.shipped_names()`).
       team: "pursuer" or "evader".
       deterministic: greedy actions instead of sampling.
       env_config: if given, checked for compatibility (the team's action count).

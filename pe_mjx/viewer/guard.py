@@ -34,8 +34,8 @@ MAX_COUNT = 1000
 SEED_MAX = 2**32 - 1
 """Largest seed (`jax.random.key` keeps 32 bits of it)."""
 
-SHIPPED_POLICIES = Path(__file__).resolve().parents[2] / "assets" / "policies"
-"""The shipped policies (a checkout's assets/policies)."""
+SHIPPED_POLICIES = Path(__file__).resolve().parents[1] / "assets" / "policies"
+"""The shipped policies (package data; a checkout's assets/policies links to them)."""
 
 
 class GuiValueError(ValueError):
@@ -247,8 +247,10 @@ class PolicyAccess:
         return dataclasses.replace(self, extra=self.extra + extra)
 
     def allows(self, spec: str) -> bool:
+        from pe_mjx.shipped import resolve_run
+
         try:
-            path = Path(spec).expanduser().resolve()
+            path = resolve_run(spec).resolve()
         except (OSError, RuntimeError, ValueError):
             return False
         if path in self.extra:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -161,7 +160,9 @@ def load_team_policy(
                 f"{team} policy {spec!r}: not {' or '.join(POLICIES)} and not a run directory "
                 f"under {access.describe()} (`pe-mjx view --policy-roots` allows others)"
             )
-        path = Path(spec).expanduser()
+        from pe_mjx.shipped import resolve_run
+
+        path = resolve_run(spec)
         if not path.exists():
             names = ", ".join(POLICIES)
             raise PolicyError(f"{team} policy {spec!r}: not one of {names} and no such directory")

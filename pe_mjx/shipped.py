@@ -1,0 +1,44 @@
+"""The policies shipped inside the package (pe_mjx/assets/policies) and run-name resolution.
+
+A shipped policy is a run directory of `pe-mjx train` (metadata and policy items only) that
+installs with the package, so `load_policy("mix-20-5-8")`, `pe-mjx evaluate --pursuers
+mix-20-5-8` and `pe-mjx view --pursuers mix-20-5-8` work from a wheel as from a checkout (where
+assets/policies/<name> links to the same files).
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+
+def policies_dir() -> Path:
+    """The directory of the shipped policies (inside the installed package)."""
+    return Path(str(resources.files("pe_mjx").joinpath("assets", "policies")))
+
+
+def shipped_names() -> tuple[str, ...]:
+    """The names of the shipped policies ("mix-20-5-8", ...)."""
+    root = policies_dir()
+    if not root.is_dir():
+        return ()
+    return tuple(sorted(p.name for p in root.iterdir() if (p / "checkpoints").is_dir()))
+
+
+def resolve_run(spec: str | Path) -> Path:
+    """A run directory from a path or a shipped policy's name.
+
+    An existing path wins (a local run directory named like a shipped policy is that run);
+    otherwise a bare name of a shipped policy is its packaged directory; anything else is
+    returned as a path, for the caller to report as missing.
+    """
+    path = Path(spec).expanduser()
+    if path.exists():
+        return path
+    text = str(spec)
+    if "/" not in text and text in shipped_names():
+        return policies_dir() / text
+    return path
+
+
+__all__ = ["policies_dir", "resolve_run", "shipped_names"]
