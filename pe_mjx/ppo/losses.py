@@ -7,6 +7,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+from brax.training.agents.ppo.losses import compute_gae
 from flax import struct
 
 from pe_mjx.networks import entropy, log_prob
@@ -22,6 +23,35 @@ class TeamBatch:
     advantages: jax.Array  # [N] GAE advantages
     returns: jax.Array  # [N] value targets (advantages + values)
     mask: jax.Array  # [N] 1 for transitions that count, 0 for incapacitated / truncated ones
+
+
+def team_targets(
+    data: dict[str, jax.Array], bootstrap: jax.Array, gamma: float, gae_lambda: float
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Advantages, value targets and loss mask of one team's [T, B, A] rollout (Brax's GAE).
+
+    `data` holds per agent and step: `reward`, `value` (the behaviour critic's), `termination`
+    (1 where the agent's trajectory ends: it was incapacitated this step, the episode
+    terminated, or it was already down), `truncation` (1 at the time-limit step of an agent still
+    valid) and `valid` (1 while the agent was active before the step). `bootstrap` [B, A] is the
+    critic's value of the state after the last step.
+
+    A termination cuts the bootstrap and the GAE recursion; a truncated step is dropped from the
+    losses (mask 0), and the step before it bootstraps from the value of its next observation, as
+    in Brax. Transitions of agents already down (valid 0) are masked out too.
+    """
+    advantages = compute_gae(
+        truncation=data["truncation"],
+        termination=data["termination"],
+        rewards=data["reward"],
+        values=data["value"],
+        bootstrap_value=bootstrap,
+        lambda_=gae_lambda,
+        discount=gamma,
+    )[1]
+    returns = advantages + data["value"]
+    mask = data["valid"] * (1.0 - data["truncation"])
+    return advantages, returns, mask
 
 
 def masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:

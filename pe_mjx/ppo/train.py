@@ -30,7 +30,6 @@ import numpy as np
 import optax
 from brax.training import gradients
 from brax.training.acme import running_statistics
-from brax.training.agents.ppo.losses import compute_gae
 from flax import struct
 
 from pe_mjx.agents import Policy, init_normalizer, learned_policy, normalize_obs, update_normalizer
@@ -41,7 +40,7 @@ from pe_mjx.experiment import BUILTIN_POLICIES as FIXED_POLICIES
 from pe_mjx.experiment import ExperimentConfig
 from pe_mjx.networks import log_prob, make_network, sample_actions
 from pe_mjx.policies import make_policy
-from pe_mjx.ppo.losses import TeamBatch, ppo_loss
+from pe_mjx.ppo.losses import TeamBatch, ppo_loss, team_targets
 
 
 @struct.dataclass
@@ -218,17 +217,7 @@ class Trainer:
 
     def _team_batch(self, team: str, ts: TeamState, data: dict, bootstrap: jax.Array) -> TeamBatch:
         cfg = self.config.ppo
-        advantages = compute_gae(
-            truncation=data["truncation"],
-            termination=data["termination"],
-            rewards=data["reward"],
-            values=data["value"],
-            bootstrap_value=bootstrap,
-            lambda_=cfg.gae_lambda,
-            discount=cfg.gamma,
-        )[1]
-        returns = advantages + data["value"]
-        mask = data["valid"] * (1.0 - data["truncation"])
+        advantages, returns, mask = team_targets(data, bootstrap, cfg.gamma, cfg.gae_lambda)
         obs = normalize_obs(data["obs"], ts.normalizer)
         batch = TeamBatch(
             obs=obs,
@@ -297,11 +286,12 @@ class Trainer:
             teams[team] = team_ts
             for k, v in losses.items():
                 metrics[f"loss/{team}/{k}"] = v
-        # Env metrics: reward terms averaged per step and arena; episode stats over finished ones.
+        # Env metrics: per-step ones (reward terms, invalid actions) averaged per step and arena;
+        # episode stats over finished ones.
         done = data["done"]
         finished = jnp.maximum(jnp.sum(done), 1.0)
         for k, v in data["metrics"].items():
-            if k.startswith("reward/"):
+            if not k.startswith("episode/"):
                 metrics[k] = jnp.mean(v)
             else:
                 # NaN when no arena finished this iteration: the logger skips it.
