@@ -373,6 +373,12 @@ def _scaled(pursuers: int, evaders: int, obstacles: int, factor: float) -> EnvCo
     return _paper(pursuers, evaders, obstacles, arena_radius=5.0 * math.sqrt(factor))
 
 
+def _ackermann_pursuers(config: EnvConfig, min_turning_radius: float) -> EnvConfig:
+    """`config` with Ackermann pursuers: actions turning tighter than the radius are masked."""
+    pursuer = dataclasses.replace(config.pursuer, min_turning_radius=min_turning_radius)
+    return config.replace(pursuer=pursuer)
+
+
 PRESETS: dict[str, EnvConfig] = {
     # The paper's three scales (Tables II-IV).
     "16-4-4": _paper(16, 4, 4),
@@ -384,6 +390,10 @@ PRESETS: dict[str, EnvConfig] = {
     "8-2-4": _paper(8, 2, 4, arena_radius=3.5),
     # 10x the paper's largest entity count (24+6+12 = 42 -> 420) on 10x the arena area.
     "240-60-120": _scaled(240, 60, 120, 10.0),
+    # The paper's physical setup (section V): 4 Ackermann pursuers chase 2 evaders in an indoor
+    # arena of about 3 m radius. The paper gives neither the obstacle count nor the minimum
+    # turning radius: 2 obstacles, and 0.4 m, typical of small Ackermann robots.
+    "4-2-2": _ackermann_pursuers(_paper(4, 2, 2, arena_radius=3.0), min_turning_radius=0.4),
 }
 PRESETS = {name: cfg.replace(name=name) for name, cfg in PRESETS.items()}
 
