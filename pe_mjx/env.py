@@ -6,16 +6,16 @@ are applied by the caller.
 
 Backends (SPEC 2.2):
   * ``"mjx"`` (default): the robots of `pe_mjx.scene` stepped by `mujoco.mjx`, `num_substeps`
-    physics steps per control step. Before each substep the velocity actuators get
-    ``(v cos psi_m, v sin psi_m, omega)`` with the heading psi_m at the middle of the substep
-    (midpoint rule: second-order accurate arcs; using the start heading drifts first-order).
+    physics steps per control step. The velocity actuators are deadbeat (gain = inertia /
+    physics_dt under the semi-implicit Euler integrator: the joint velocity equals the command
+    after one physics step), and before each physics step they get the chord velocity of that
+    step's piece of the commanded arc, ``v sinc(omega dt / 2) (cos psi_m, sin psi_m)`` and
+    ``omega``, with psi_m the heading at the middle of the physics step. So every physics step
+    ends exactly on the arc that the action mask predicted (docs/design.md, "MJX actuation").
   * ``"kinematic"``: eq. (1) integrated exactly (constant v, omega over the step: an arc).
 
-MJX against the kinematic reference (tests/test_env.py::test_mjx_matches_kinematic_reference):
-for the same actions (random, mask-valid, 50 control steps, 2-1-1), every agent's position agrees
-within 1 cm and its yaw within 0.02 rad while it is active in both backends. Measured maximum:
-3.9 mm and 0.0079 rad (10 seeds); the difference is the velocity actuators' lag
-(`EnvConfig.actuator_time_constant`), which accumulates each time an action changes.
+MJX against the kinematic reference (tests/test_rules.py): for the same actions, every event is
+the same (agent, step, cause) and poses agree within `MJX_POSE_TOL` (float32 rounding only).
 
 The action mask keeps `MASK_MARGIN` (0.1 mm) from the wall and obstacles, so float32 rounding never
 lets an unmasked action end a step touching them.
@@ -48,6 +48,10 @@ OBSTACLE_FEATURES = 4
 # lets an unmasked action end a step touching; without it, about 1 in 10^5 random near-wall
 # actions did.
 MASK_MARGIN = 1e-4
+# MJX poses agree with the kinematic backend's within this (metres and radians) for the same
+# actions: both end every control step on the same arc, up to float32 rounding (measured in
+# tests/test_rules.py: 1.7e-5 m and 7e-6 rad after 420 steps).
+MJX_POSE_TOL = 1e-4
 
 
 @struct.dataclass
@@ -226,14 +230,6 @@ class PursuitEvasionEnv:
         """Splits an [..., N, ...] per-agent array on axis -1 into teams."""
         return {t: x[..., s] for t, s in self.team_slices.items()}
 
-    def observe(self, world: World) -> dict[str, dict[str, jax.Array]]:
-        """The observations and action masks `step` would give for `world` (SPEC 2.5, 2.4).
-
-        Pure and jittable; only the poses, velocities, active flags and obstacles are read. For
-        controllers that build a `World` from measured poses (`pe_mjx.deploy`).
-        """
-        return self._observe(world)
-
     # ----------------------------------------------------------------- reset
 
     def reset(self, rng: jax.Array) -> State:
@@ -367,7 +363,7 @@ class PursuitEvasionEnv:
         else:
             pos, yaw, vel = self._integrate_kinematic(w.pos, w.yaw, speed, turn)
             physics = None
-        # Incapacitated agents never move again (exactly, whatever the actuator lag).
+        # Incapacitated agents never move again (their commands are zero; this makes it exact).
         pos = jnp.where(was_active[:, None], pos, w.pos)
         yaw = jnp.where(was_active, yaw, w.yaw)
 
@@ -377,11 +373,11 @@ class PursuitEvasionEnv:
         active, cause = events["active"], jnp.where(w.cause > 0, w.cause, events["cause"])
         vel = jnp.where(active[:, None], vel, 0.0)
         if physics is not None:
+            # qpos is the world pose with the yaw wrapped, as in the kinematic backend (an
+            # unwrapped yaw would lose float32 precision as it grows over an episode).
             qpos = jnp.concatenate([pos, yaw[:, None]], axis=1).reshape(-1)
-            qvel = jnp.concatenate([vel, jnp.zeros((self.num_agents, 1))], axis=1)
-            qvel = jnp.where(active[:, None], physics.qvel.reshape(-1, 3), qvel).reshape(-1)
-            physics = physics.replace(qpos=jnp.where(jnp.repeat(was_active, 3), physics.qpos, qpos))
-            physics = physics.replace(qvel=qvel)
+            qvel = jnp.where(active[:, None], physics.qvel.reshape(-1, 3), 0.0).reshape(-1)
+            physics = physics.replace(qpos=qpos, qvel=qvel)
 
         step_count = w.step + 1
         world = World(
@@ -446,17 +442,28 @@ class PursuitEvasionEnv:
     ) -> tuple[jax.Array, jax.Array, jax.Array, Any]:
         from mujoco import mjx
 
-        half_dt = 0.5 * self.config.physics_dt
+        half = 0.5 * self.config.physics_dt * turn
+        # A chord of an arc of angle 2h and radius v / omega is v dt sin(h) / h long and points
+        # along the heading at its middle; sin(h) / h to float32 precision (|h| <= 0.16 rad).
+        h2 = half * half
+        chord_speed = speed * (1 - h2 / 6 * (1 - h2 / 20 * (1 - h2 / 42)))
 
         def substep(d, _):
-            c, s = cos_sin(d.qpos[2::3] + turn * half_dt)
-            ctrl = jnp.stack([speed * c, speed * s, turn], axis=1)
+            c, s = cos_sin(d.qpos[2::3] + half)
+            ctrl = jnp.stack([chord_speed * c, chord_speed * s, turn], axis=1)
             return mjx.step(self.mjx_model, d.replace(ctrl=ctrl.reshape(-1))), None
 
-        data, _ = jax.lax.scan(substep, data, None, length=self.config.num_substeps)
+        if self.config.num_substeps == 1:
+            data, _ = substep(data, None)
+        else:
+            data, _ = jax.lax.scan(substep, data, None, length=self.config.num_substeps)
         q = data.qpos.reshape(-1, 3)
-        vel = data.qvel.reshape(-1, 3)[:, :2]
-        return q[:, :2], wrap_angle(q[:, 2]), vel, data
+        yaw = wrap_angle(q[:, 2])
+        # The unicycle's velocity at the end of the step (the kinematic backend's), not the last
+        # chord's: observations are the same in both backends.
+        c1, s1 = cos_sin(yaw)
+        vel = speed[:, None] * jnp.stack([c1, s1], axis=-1)
+        return q[:, :2], yaw, vel, data
 
     # ----------------------------------------------------------------- geometry
 
