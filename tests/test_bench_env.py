@@ -118,3 +118,13 @@ def test_bad_arguments_exit_with_a_message(bench, argv, capsys):
         bench.parse_args(argv)
     assert err.value.code == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_worker_over_the_memory_limit_is_stopped_with_the_measured_size(bench):
+    """Memory is measured, not predicted: a worker past --max-memory-gb (here 50 MB, which the
+    Python/JAX import alone exceeds) is stopped and recorded with what it reached."""
+    spec = {"impl": "kinematic", "preset": "2-1-1", "batch": 1, "steps": 1, "actions": "random"}
+    spec.update(min_calls=1, min_seconds=0.0, max_seconds=1.0)
+    row = bench.run_worker(spec, timeout=120.0, max_memory_gb=0.05)
+    assert row["status"] == "skipped"
+    assert "measured" in row["reason"] and "--max-memory-gb 0.05" in row["reason"]

@@ -18,8 +18,10 @@ Each (implementation, preset, batch) runs in its own subprocess, so that its pea
 (`resource.getrusage(RUSAGE_SELF).ru_maxrss`, which includes the ~0.5 GB of Python, JAX and XLA
 loaded before anything is built; reported separately as `baseline_rss_mb`) belongs to it alone.
 Configurations predicted, from the smaller batches of the same implementation, to need more than
-`--max-memory-gb` or more than `--max-seconds-total` are skipped and recorded with the reason; so
-is one that runs past the hard `--timeout`. Throughput is the best of the timed calls (the machine
+`--max-seconds-total` are skipped and recorded with the reason. Memory is never predicted into a
+skip: every configuration runs, and the parent polls its worker's resident memory and stops it
+(recorded with the measured size) once it exceeds `--max-memory-gb`, or once it runs past the hard
+`--timeout`. Throughput is the best of the timed calls (the machine
 is shared and noisy: the best call is the least disturbed one); the median is in the JSON too.
 Implementations run interleaved per batch size, so the ours/JaxMARL ratios come from the same
 minutes of the same run.
@@ -45,6 +47,7 @@ import platform
 import resource
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -208,6 +211,31 @@ def run_one(spec: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def mjx_before_issue_9(config):
+    """The MJX env as it was before issue 9, for the breakdown's before/after rows: the same env
+    code on the old physics model (`implicitfast`, automatic mass-matrix mode, velocity actuators
+    with a 5 ms lag, 4 physics steps of 0.05 s per control step). Its chord commands are the new
+    ones, which cost the same as the old midpoint commands."""
+    import mujoco
+    from mujoco import mjx
+
+    from pe_mjx import scene
+    from pe_mjx.env import PursuitEvasionEnv
+
+    config = config.replace(physics_dt=0.05)
+    env = PursuitEvasionEnv(config, backend="mjx")
+    spec = scene.build_spec(config, None, visual=False)
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_AUTO
+    spec.option.disableflags = int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    for act in spec.actuators:  # deadbeat kv = inertia / physics_dt -> lagging inertia / 5 ms
+        act.set_to_velocity(kv=act.gainprm[0] * config.physics_dt / 0.005)
+    env.mj_model = spec.compile()
+    env.mjx_model = mjx.put_model(env.mj_model)
+    env._mjx_data0 = mjx.make_data(env.mjx_model)
+    return env
+
+
 def run_breakdown(spec: dict[str, Any]) -> dict[str, Any]:
     """Times the parts of one step (see the module docstring); runs in the worker subprocess."""
     import jax
@@ -224,6 +252,7 @@ def run_breakdown(spec: dict[str, Any]) -> dict[str, Any]:
 
     envs = {b: make(preset, backend=b) for b in ("kinematic", "mjx")}
     env = envs["kinematic"]
+    before = mjx_before_issue_9(env.config)
     no_mask = NoMaskEnv(env.config, backend="kinematic")
     p, n = env.num_pursuers, env.num_agents
 
@@ -246,6 +275,10 @@ def run_breakdown(spec: dict[str, Any]) -> dict[str, Any]:
         states = {b: steps[b](states[b], acts) for b in envs}
     acts = masked_random(key, states["kinematic"])
     w = states["kinematic"].world
+    physics_before = jax.vmap(lambda q: before._mjx_data0.replace(qpos=q))(
+        states["mjx"].physics.qpos
+    )
+    state_before = states["mjx"].replace(physics=physics_before)
     speed = jnp.where(w.active, 0.1, 0.0)
     turn = jnp.where(w.active, 0.3, 0.0)
     geom = jax.jit(jax.vmap(env._geometry))(w.pos, w.yaw, w.obstacles)
@@ -268,6 +301,10 @@ def run_breakdown(spec: dict[str, Any]) -> dict[str, Any]:
             envs["mjx"]._integrate_mjx,
             (states["mjx"].physics, speed, turn),
         ),
+        "physics (mjx, before issue 9)": (
+            before._integrate_mjx,
+            (physics_before, speed, turn),
+        ),
         "geometry (shared offsets, distances)": (env._geometry, (w.pos, w.yaw, w.obstacles)),
         "events": (env._events, (w.pos, w.active, w.obstacles, geom)),
         "rewards": (
@@ -278,6 +315,7 @@ def run_breakdown(spec: dict[str, Any]) -> dict[str, Any]:
         "action masks": (masks, (w.pos, w.yaw, w.obstacles, geom)),
         "full step (kinematic)": (envs["kinematic"].step, (states["kinematic"], acts)),
         "full step (mjx)": (envs["mjx"].step, (states["mjx"], acts)),
+        "full step (mjx, before issue 9)": (before.step, (state_before, acts)),
     }
     compiled = {}
     for name, (fn, args) in parts.items():
@@ -359,20 +397,51 @@ def _jaxmarl_version() -> str | None:
     return importlib.metadata.version("jaxmarl")
 
 
-def run_worker(spec: dict[str, Any], timeout: float) -> dict[str, Any]:
+def _rss_of(pid: int) -> float:
+    """Resident set size of a live process in MB (Linux /proc), 0 if it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
+
+
+def run_worker(spec: dict[str, Any], timeout: float, max_memory_gb: float) -> dict[str, Any]:
+    """Runs one configuration in a subprocess, stopping it past `timeout` seconds or once its
+    measured resident memory exceeds `max_memory_gb` (polled every 0.1 s)."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", json.dumps(spec)]
     env = dict(os.environ)
     env.setdefault("PYTHONPATH", str(ROOT))
-    try:
-        proc = subprocess.run(
-            cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT, env=env, check=False
-        )
-    except subprocess.TimeoutExpired:
-        return {"status": "skipped", "reason": f"ran past the {timeout:.0f} s timeout"}
-    for line in proc.stdout.splitlines():
+    limit_mb = max_memory_gb * 1024
+    peak = 0.0
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, text=True, cwd=ROOT, env=env)
+        start = time.monotonic()
+        reason = None
+        while proc.poll() is None:
+            peak = max(peak, _rss_of(proc.pid))
+            if peak > limit_mb:
+                reason = (
+                    f"stopped at a measured {peak / 1024:.1f} GB resident > --max-memory-gb "
+                    f"{max_memory_gb:g}"
+                )
+            elif time.monotonic() - start > timeout:
+                reason = f"ran past the {timeout:.0f} s timeout"
+            if reason:
+                proc.kill()
+                proc.wait()
+                return {"status": "skipped", "reason": reason}
+            time.sleep(0.1)
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    for line in stdout.splitlines():
         if line.startswith(RESULT_TAG):
             return json.loads(line[len(RESULT_TAG) :])
-    tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+    tail = (stderr or stdout).strip().splitlines()[-3:]
     if proc.returncode < 0 or proc.returncode == 137:
         reason = f"worker killed (signal {-proc.returncode}), probably out of memory"
     else:
@@ -443,11 +512,6 @@ def collect(args: argparse.Namespace) -> dict[str, Any]:
                     reason = "jaxmarl is not installed (pip install -e '.[bench]')"
                 elif any(r.get("status") != "ok" for r in hist):
                     reason = "a smaller batch of this implementation was skipped"
-                elif guess and guess["memory_mb"] > args.max_memory_gb * 1024:
-                    reason = (
-                        f"predicted peak memory {guess['memory_mb'] / 1024:.1f} GB > "
-                        f"{args.max_memory_gb:g} GB"
-                    )
                 elif guess and guess["seconds"] > args.max_seconds_total:
                     reason = (
                         f"predicted {guess['seconds']:.0f} s (compile, then calls of "
@@ -456,7 +520,7 @@ def collect(args: argparse.Namespace) -> dict[str, Any]:
                     )
                 if reason is None:
                     print(f"[bench_env] {impl:9s} {preset:10s} batch {batch:5d} ...", flush=True)
-                    row = run_worker(spec, args.timeout)
+                    row = run_worker(spec, args.timeout, args.max_memory_gb)
                 else:
                     row = {"status": "skipped", "reason": reason}
                 row = {"impl": impl, "preset": preset, "batch": batch, **row}
@@ -572,7 +636,10 @@ def markdown(report: dict[str, Any]) -> str:
             f"best of {bd['reps']} interleaved calls. Parts run alone lose some fusion (the "
             "geometry alone writes all its arrays out; in a step they are fused into their "
             "consumers), so they need not add up to the step; the rest of a step is glue (action "
-            "lookup, freezing incapacitated agents, metrics, done flags).",
+            "lookup, freezing incapacitated agents, metrics, done flags). The rows 'before "
+            "issue 9' are the same env code on the old MJX model (`implicitfast`, 5 ms actuator "
+            "lag, 4 physics steps per control step), measured in the same run; their share is of "
+            "the old MJX step.",
             "",
             "| part | us per call (best) | us (median) | share of kinematic step "
             "| share of MJX step |",
@@ -580,12 +647,17 @@ def markdown(report: dict[str, Any]) -> str:
         ]
         parts = bd["parts"]
         full = {b: parts[f"full step ({b})"]["us_best"] for b in ("kinematic", "mjx")}
+        old_step = parts.get("full step (mjx, before issue 9)", {}).get("us_best")
         for name, row in parts.items():
             shares = []
             for b in ("kinematic", "mjx"):
                 other = "mjx" if b == "kinematic" else "kinematic"
-                mine = other not in name
-                shares.append(f"{100 * row['us_best'] / full[b]:.1f}%" if mine else "")
+                total = full[b]
+                if "before issue 9" in name:
+                    mine, total = b == "mjx", old_step
+                else:
+                    mine = other not in name
+                shares.append(f"{100 * row['us_best'] / total:.1f}%" if mine else "")
             lines.append(
                 f"| {name} | {row['us_best']:,.0f} | {row['us_median']:,.0f} | "
                 f"{shares[0]} | {shares[1]} |"
@@ -635,7 +707,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=["20-5-8"],
         help="presets JaxMARL runs at (at 240-60-120 its compile ran past 300 s)",
     )
-    ap.add_argument("--max-memory-gb", type=float, default=16.0)
+    ap.add_argument(
+        "--max-memory-gb", type=float, default=16.0, help="stop a worker past this resident size"
+    )
     ap.add_argument(
         "--max-seconds-total", type=float, default=120.0, help="skip configs predicted longer"
     )
@@ -713,7 +787,7 @@ def main(argv: list[str] | None = None) -> int:
             "reps": 10 if args.quick else 50,
         }
         print("[bench_env] breakdown ...", flush=True)
-        report["breakdown"] = run_worker(spec, args.timeout)
+        report["breakdown"] = run_worker(spec, args.timeout, args.max_memory_gb)
     report["total_seconds"] = round(time.perf_counter() - start, 1)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2) + "\n")
