@@ -28,7 +28,24 @@ def _fail(message: str) -> None:
 
 def _check_preset(name: str) -> None:
     if name not in PRESETS:
-        _fail(f"unknown preset {name!r}; known presets: {', '.join(PRESETS)}")
+        _fail(f"--preset: unknown preset {name!r}; known presets: {', '.join(PRESETS)}")
+
+
+SEED_LIMIT = 2**32
+"""Seeds are in [0, 2**32) (`jax.random.key` keeps 32 bits; larger ones overflowed)."""
+BACKENDS = ("mjx", "kinematic")
+MAX_TRIALS = 100_000
+"""Episodes per pairing at most (one vmapped batch: more would exhaust memory)."""
+
+
+def _check_seed(seed: int) -> None:
+    if not 0 <= seed < SEED_LIMIT:
+        _fail(f"--seed must be in [0, 2**32), got {seed}")
+
+
+def _check_backend(backend: str) -> None:
+    if backend not in BACKENDS:
+        _fail(f"--backend: unknown backend {backend!r}; expected mjx or kinematic")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,11 +145,34 @@ def train_defaults(argv: list[str]) -> TrainArgs:
     return TrainArgs(experiment=base)
 
 
+def _check_opponents(config: ExperimentConfig) -> None:
+    """A team played frozen from a run: its checkpoint is checked before anything is written."""
+    from pe_mjx.experiment import BUILTIN_POLICIES
+    from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
+
+    for team in ("pursuer", "evader"):
+        spec = config.team(team).policy
+        if spec == "learn" or spec in BUILTIN_POLICIES:
+            continue
+        try:
+            meta = read_meta(spec)
+        except CheckpointError as err:
+            _fail(f"--{team}.policy: {err}")
+        if team not in meta["network_configs"]:
+            _fail(f"--{team}.policy: run {spec} did not learn a {team} policy")
+
+
 def run_train(args: TrainArgs) -> None:
-    from pe_mjx.ppo.checkpoint import CheckpointError
-    from pe_mjx.ppo.run import resume_config, train
+    from pe_mjx.ppo.checkpoint import CheckpointError, CheckpointWriteError
+    from pe_mjx.ppo.run import TrainingError, resume_config, train
 
     config = args.experiment
+    if args.stop_after is not None and args.stop_after < 1:
+        _fail(f"--stop-after must be >= 1, got {args.stop_after}")
+    if args.resume is None:
+        out = args.out or Path("runs") / f"{config.pursuer.network.encoder}-{config.preset}"
+        _check_writable_dir("--out", out)
+    _check_opponents(config)
     try:
         if args.resume is not None:
             if args.out is not None and args.out.resolve() != args.resume.resolve():
@@ -163,7 +203,12 @@ def run_train(args: TrainArgs) -> None:
         finally:
             if viewer is not None:
                 viewer.stop()
-    except CheckpointError as err:
+    except CheckpointWriteError as err:
+        # orbax may have left threads waiting forever: end without waiting for them
+        print(f"pe-mjx: error: {err}", file=sys.stderr, flush=True)
+        sys.stdout.flush()
+        os._exit(2)
+    except (CheckpointError, TrainingError) as err:
         _fail(str(err))
     print(f"run {out}: {int(state.env_steps):,} env steps, iteration {int(state.iteration)}")
 
@@ -356,14 +401,42 @@ class EvaluateArgs:
     """Output directory."""
 
 
+def _check_policy_specs(flag: str, specs: tuple[str, ...], team: str) -> None:
+    """Each spec is built in or a readable run that learned `team`: checked before any compile."""
+    from pe_mjx.evaluate import BUILTIN
+    from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
+    from pe_mjx.shipped import resolve_run
+
+    if not specs:
+        _fail(f"{flag} needs at least one policy (scripted, random, a shipped policy or a run)")
+    for spec in specs:
+        if spec in BUILTIN:
+            continue
+        if not spec or not resolve_run(spec).is_dir():
+            _fail(f"{flag}: {spec!r} is not scripted, random, a shipped policy or a run directory")
+        try:
+            meta = read_meta(spec)
+        except CheckpointError as err:
+            _fail(f"{flag}: {err}")
+        if team not in meta["network_configs"]:
+            _fail(f"{flag}: run {spec} did not learn a {team} policy")
+
+
 def run_evaluate(args: EvaluateArgs) -> None:
     _check_preset(args.preset)
-    if args.trials < 1:
-        _fail("--trials must be >= 1")
-    if args.backend not in ("mjx", "kinematic"):
-        _fail(f"unknown backend {args.backend!r}; expected mjx or kinematic")
+    if not 1 <= args.trials <= MAX_TRIALS:
+        _fail(f"--trials must be in 1..{MAX_TRIALS}, got {args.trials}")
+    if args.record < 0:
+        _fail(f"--record must be >= 0 (trials saved per pairing), got {args.record}")
+    _check_seed(args.seed)
+    _check_backend(args.backend)
+    if args.out.exists() and not args.out.is_dir():
+        _fail(f"--out: {args.out} is not a directory")
     if args.out.exists() and any(args.out.glob("results.*")):
-        _fail(f"{args.out} already holds results; choose another --out")
+        _fail(f"--out: {args.out} already holds results; choose another --out")
+    _check_writable_dir("--out", args.out)
+    _check_policy_specs("--pursuers", args.pursuers, "pursuer")
+    _check_policy_specs("--evaders", args.evaders, "evader")
     from pe_mjx.evaluate import evaluate
 
     report = evaluate(
@@ -374,7 +447,7 @@ def run_evaluate(args: EvaluateArgs) -> None:
         args.trials,
         args.seed,
         args.backend,
-        args.record,
+        min(args.record, args.trials),
     )
     print(report["paths"]["markdown"].read_text())
     print(f"wrote {args.out} in {report['meta']['seconds']:.1f} s")
@@ -382,12 +455,14 @@ def run_evaluate(args: EvaluateArgs) -> None:
 
 def run_scene(args: SceneArgs) -> None:
     _check_preset(args.preset)
+    _check_seed(args.seed)
     if args.output.is_dir():
         _fail(f"{args.output} is a directory; give the path of the file to write")
     if args.output.exists() and not args.force:
         _fail(f"{args.output} exists; pass --force to overwrite it")
     if not args.output.parent.is_dir():
-        _fail(f"directory {args.output.parent} does not exist")
+        _fail(f"--output: directory {args.output.parent} does not exist")
+    _check_writable_dir("--output", args.output.parent)
     from pe_mjx.export import arena_xml
 
     xml = arena_xml(args.preset, args.seed)
@@ -412,6 +487,10 @@ def run_scene(args: SceneArgs) -> None:
 
 def run_demo(args: DemoArgs) -> None:
     _check_preset(args.preset)
+    _check_seed(args.seed)
+    _check_backend(args.backend)
+    if args.steps < 1:
+        _fail(f"--steps must be >= 1, got {args.steps}")
     from pe_mjx.match import play_scripted_match
 
     result = play_scripted_match(args.preset, args.seed, args.backend, args.steps)
@@ -423,7 +502,7 @@ def _one_line(box: str) -> str:
     """tyro's boxed error message as one line (its text without the frame and the help hint)."""
     parts = []
     for line in box.splitlines():
-        text = re.sub(r"[│╭╮╰╯─]+", " ", line).strip()
+        text = re.sub(r"[│╭╮╰╯─]+|-{3,}", " ", line).strip()
         if not text or text.startswith(("For full helptext", "Usage:", "usage:")):
             continue
         parts.append(text)
@@ -499,6 +578,9 @@ def main(argv: list[str] | None = None) -> None:
                 fn(args)
             except ValueError as err:
                 _fail(str(err))
+            except OSError as err:  # a file system failure while working: one line too
+                where = f"{err.filename}: " if err.filename else ""
+                _fail(f"{where}{err.strerror or err}")
             except KeyboardInterrupt:
                 print("pe-mjx: interrupted", file=sys.stderr)
                 raise SystemExit(130) from None

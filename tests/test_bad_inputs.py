@@ -1,0 +1,365 @@
+"""The CLI's error contract, table-driven: every bad flag, value, path or damaged file of every
+subcommand ends with exactly one line `pe-mjx: error: ...`, exit code 2, no traceback, and
+leaves the file system as it was. Cases run in-process through `pe_mjx.cli.main` and all fail
+before anything is compiled; the test prints "N tried, N clear errors" for the CI log."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pe_mjx.cli import main
+from pe_mjx.ppo.checkpoint import lock_run
+from pe_mjx.shipped import policies_dir
+
+BIG = str(2**63)
+HUGE = str(2**64)
+TINY_TRAIN = ["--preset", "2-1-1", "--backend", "kinematic", "--no-progress"]
+
+
+# Damaged copies of a shipped policy run: name -> change to its metadata (a dict) or a file edit.
+META_DAMAGE = {
+    "num_actions_off_by_one": lambda m: m["num_actions"].__setitem__(
+        "pursuer", m["num_actions"]["pursuer"] + 1
+    ),
+    "num_actions_string": lambda m: m["num_actions"].__setitem__("pursuer", "39"),
+    "wrong_typed_setting": lambda m: m["env_config"].__setitem__("max_steps", "100"),
+    "num_agents_20000": lambda m: m["env_config"]["pursuer"].__setitem__("num_agents", 20000),
+    "num_obstacles_huge": lambda m: m["env_config"]["arena"].__setitem__("num_obstacles", 10**6),
+    "negative_radius": lambda m: m["env_config"]["arena"].__setitem__("radius", -1.0),
+    "unknown_env_field": lambda m: m["env_config"].__setitem__("gravity", 9.81),
+    "missing_env_config": lambda m: m.pop("env_config"),
+    "missing_num_actions": lambda m: m.pop("num_actions"),
+    "format_99": lambda m: m.__setitem__("format_version", 99),
+    "format_string": lambda m: m.__setitem__("format_version", "2"),
+    "format_2_without_experiment": lambda m: m.__setitem__("format_version", 2),
+    "network_configs_list": lambda m: m.__setitem__("network_configs", []),
+    "network_configs_empty": lambda m: m.__setitem__("network_configs", {}),
+    "network_unknown_team": lambda m: m["network_configs"].__setitem__("referee", {}),
+    "network_width_huge": lambda m: m["network_configs"]["pursuer"].__setitem__("width", 10**6),
+    "network_bad_encoder": lambda m: m["network_configs"]["pursuer"].__setitem__(
+        "encoder", "transformer"
+    ),
+    "network_width_wrong": lambda m: m["network_configs"]["pursuer"].__setitem__("width", 64),
+    "iteration_negative": lambda m: m.__setitem__("iteration", -1),
+    "env_steps_float": lambda m: m.__setitem__("env_steps", 1.5),
+}
+
+
+def _file_damage(step: Path, kind: str) -> None:
+    if kind == "meta_truncated":
+        meta = step / "meta" / "metadata"
+        meta.write_bytes(meta.read_bytes()[:50])
+    elif kind == "meta_list":
+        (step / "meta" / "metadata").write_text("[1, 2, 3]")
+    elif kind == "meta_binary":
+        (step / "meta" / "metadata").write_bytes(os.urandom(256))
+    elif kind == "params_truncated":
+        for f in (step / "policy_pursuer").rglob("*"):
+            if f.is_file() and f.stat().st_size > 0:
+                f.write_bytes(f.read_bytes()[: f.stat().st_size // 3])
+    elif kind == "params_zeroed":
+        for f in (step / "policy_pursuer").rglob("*"):
+            if f.is_file() and f.stat().st_size > 16:
+                f.write_bytes(b"\0" * f.stat().st_size)
+    elif kind == "params_missing":
+        shutil.rmtree(step / "policy_pursuer")
+    elif kind == "manifest_garbage":
+        (step / "policy_pursuer" / "manifest.ocdbt").write_bytes(b"garbage" * 10)
+    elif kind == "checkpoints_is_a_file":
+        shutil.rmtree(step.parent)
+        step.parent.write_text("not a directory")
+    elif kind == "only_unfinished_step":
+        step.rename(step.parent / f"{step.name}.orbax-checkpoint-tmp-1")
+    elif kind == "no_checkpoints":
+        shutil.rmtree(step.parent)
+
+
+FILE_DAMAGE = (
+    "meta_truncated",
+    "meta_list",
+    "meta_binary",
+    "params_truncated",
+    "params_zeroed",
+    "params_missing",
+    "manifest_garbage",
+    "checkpoints_is_a_file",
+    "only_unfinished_step",
+    "no_checkpoints",
+)
+DAMAGED = (*META_DAMAGE, *FILE_DAMAGE)
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> Path:
+    """A scratch tree: files, directories, damaged runs, bad config and replay files."""
+    root = tmp_path_factory.mktemp("bad-inputs")
+    (root / "afile").write_text("a file")
+    (root / "existing.xml").write_text("precious")
+    (root / "adir").mkdir()
+    (root / "emptydir").mkdir()
+    (root / "results").mkdir()
+    (root / "results" / "results.md").write_text("old results")
+    shipped = policies_dir() / "mix-20-5-8"
+    runs = root / "runs"
+    for name in DAMAGED:
+        run = runs / name
+        shutil.copytree(shipped, run, symlinks=False)
+        step = next(p for p in (run / "checkpoints").iterdir() if p.name.isdigit())
+        if name in META_DAMAGE:
+            path = step / "meta" / "metadata"
+            meta = json.loads(path.read_text())
+            META_DAMAGE[name](meta)
+            path.write_text(json.dumps(meta))
+        else:
+            _file_damage(step, name)
+    shutil.copytree(shipped, runs / "good")
+    (root / "locked").mkdir()
+    configs = root / "configs"
+    configs.mkdir()
+    (configs / "broken.json").write_text("{not json")
+    (configs / "list.json").write_text("[1, 2]")
+    (configs / "list.yaml").write_text("- 1\n- 2\n")
+    (configs / "unknown.json").write_text(json.dumps({"ppo": {"learning_speed": 1}}))
+    (configs / "wrongtype.json").write_text(json.dumps({"ppo": {"num_envs": "64"}}))
+    (configs / "nan.json").write_text('{"ppo": {"learning_rate": NaN}}')
+    (configs / "gamma.yaml").write_text("ppo:\n  gamma: 2.0\n")
+    (configs / "huge.json").write_text(" " * 1_100_000 + "{}")
+    (configs / "binary.json").write_bytes(os.urandom(512))
+    (configs / "bothfixed.json").write_text(
+        json.dumps({"pursuer": {"policy": "scripted"}, "evader": {"policy": "scripted"}})
+    )
+    replays = root / "replays"
+    replays.mkdir()
+    (replays / "empty.npz").write_bytes(b"")
+    (replays / "random.npz").write_bytes(os.urandom(4096))
+    (replays / "text.npz").write_text("not a zip")
+    import zipfile
+
+    with zipfile.ZipFile(replays / "emptyzip.npz", "w"):
+        pass
+    with zipfile.ZipFile(replays / "junkzip.npz", "w") as z:
+        z.writestr("pos.npy", b"\x93NUMPY junk")
+    return root
+
+
+def _cases(w: Path) -> list[tuple[str, list[str]]]:
+    runs = w / "runs"
+    cases: list[tuple[str, list[str]]] = []
+
+    def add(name: str, *argv: str) -> None:
+        cases.append((name, list(argv)))
+
+    # ---- top level
+    add("no-subcommand-unknown", "frobnicate")
+    add("unknown-top-flag", "--frobnicate")
+    # ---- scene
+    for seed in ("-1", str(2**32), BIG, HUGE, "abc", "1.5", ""):
+        add(f"scene-seed-{seed[:6]}", "scene", "--seed", seed, "-o", str(w / "s.xml"))
+    add("scene-preset", "scene", "--preset", "nope", "-o", str(w / "s.xml"))
+    add("scene-output-dir", "scene", "-o", str(w / "adir"), "--force")
+    add("scene-output-missing-dir", "scene", "-o", str(w / "missing" / "a.xml"))
+    add("scene-output-under-file", "scene", "-o", str(w / "afile" / "a.xml"))
+    add("scene-output-exists", "scene", "-o", str(w / "existing.xml"))
+    add("scene-unknown-flag", "scene", "--no-such-flag")
+    add("scene-missing-value", "scene", "--preset")
+    add("scene-force-value", "scene", "--force=maybe")
+    add("scene-extra-positional", "scene", "extra")
+    # ---- demo
+    for seed in ("-1", str(2**32), BIG, HUGE, "x"):
+        add(f"demo-seed-{seed[:6]}", "demo", "--seed", seed)
+    for steps in ("0", "-5", "abc", "1e3"):
+        add(f"demo-steps-{steps}", "demo", "--steps", steps)
+    add("demo-backend", "demo", "--backend", "warp")
+    add("demo-preset", "demo", "--preset", "1-1-1")
+    add("demo-unknown-flag", "demo", "--pursuers", "scripted")
+    # ---- evaluate
+    ev = ["evaluate", "--preset", "2-1-1", "--backend", "kinematic", "--trials", "2"]
+    ev_out = ["--out", str(w / "ev")]
+    add("evaluate-empty-pursuers", *ev, *ev_out, "--pursuers")
+    add("evaluate-empty-evaders", *ev, *ev_out, "--evaders")
+    for record in ("-1", "-100", "abc"):
+        add(f"evaluate-record-{record}", *ev, *ev_out, "--record", record)
+    for trials in ("0", "-3", str(10**9), "1.5"):
+        add(f"evaluate-trials-{trials}", *ev[:-1], trials, *ev_out)
+    for seed in ("-1", str(2**32), BIG, HUGE):
+        add(f"evaluate-seed-{seed[:6]}", *ev, *ev_out, "--seed", seed)
+    add("evaluate-backend", "evaluate", "--backend", "warp", *ev_out)
+    add("evaluate-preset", "evaluate", "--preset", "nope", *ev_out)
+    add("evaluate-out-file", *ev, "--out", str(w / "afile"))
+    add("evaluate-out-under-file", *ev, "--out", str(w / "afile" / "sub"))
+    add("evaluate-out-has-results", *ev, "--out", str(w / "results"))
+    add("evaluate-pursuer-missing", *ev, *ev_out, "--pursuers", "no-such-run")
+    add("evaluate-pursuer-empty-string", *ev, *ev_out, "--pursuers", "")
+    add("evaluate-pursuer-file", *ev, *ev_out, "--pursuers", str(w / "afile"))
+    add("evaluate-pursuer-plain-dir", *ev, *ev_out, "--pursuers", str(w / "adir"))
+    add("evaluate-evader-missing", *ev, *ev_out, "--evaders", "scripted", "nope")
+    add("evaluate-unknown-flag", *ev, *ev_out, "--episodes", "3")
+    for name in DAMAGED:
+        add(f"evaluate-damaged-{name}", *ev, *ev_out, "--pursuers", str(runs / name))
+    # ---- view (all fail before the server starts)
+    vw = ["view", "--preset", "2-1-1", "--backend", "kinematic"]
+    for port in ("-1", "70000", "http"):
+        add(f"view-port-{port}", *vw, "--port", port)
+    for seed in ("-1", BIG, HUGE):
+        add(f"view-seed-{seed[:6]}", *vw, "--seed", seed)
+    for speed in ("nan", "inf", "-1"):
+        add(f"view-speed-{speed}", *vw, "--speed", speed)
+    for arenas in ("0", "65", "-2"):
+        add(f"view-arenas-{arenas}", *vw, "--arenas", arenas)
+    add("view-backend", "view", "--backend", "warp")
+    add("view-preset", "view", "--preset", "nope", "--backend", "kinematic")
+    add("view-steps", *vw, "--export", str(w / "exp"), "--steps", "0")
+    add("view-record-dir-file", *vw, "--record-dir", str(w / "afile"))
+    add("view-policy-roots-missing", *vw, "--policy-roots", str(w / "missing"))
+    add("view-pursuers-missing", *vw, "--pursuers", "no-such-run")
+    add("view-evaders-file", *vw, "--evaders", str(w / "afile"))
+    add("view-replay-missing", *vw, "--replay", str(w / "missing.npz"))
+    for replay in sorted((w / "replays").iterdir()):
+        add(f"view-replay-{replay.stem}", *vw, "--replay", str(replay))
+    for name in ("num_actions_off_by_one", "num_agents_20000", "params_truncated", "meta_binary"):
+        add(f"view-damaged-{name}", *vw, "--pursuers", str(runs / name))
+    # ---- train: every hyperparameter range, paths, configs, resume
+    out = ["--out", str(w / "run")]
+    bad_values = {
+        "--ppo.learning-rate": ("nan", "inf", "-1e-4", "0", "fast"),
+        "--ppo.gamma": ("2", "0", "-0.5", "nan"),
+        "--ppo.gae-lambda": ("0", "1.5", "inf"),
+        "--ppo.clip-epsilon": ("-0.2", "0"),
+        "--ppo.max-grad-norm": ("0", "-1"),
+        "--ppo.value-coef": ("-1", "nan"),
+        "--ppo.entropy-coef": ("-0.01", "inf"),
+        "--ppo.num-envs": ("0", "-1", "abc", "2.5"),
+        "--ppo.unroll-length": ("0", "-4"),
+        "--ppo.update-epochs": ("0",),
+        "--ppo.num-minibatches": ("0", "100000"),
+        "--ppo.lr-schedule": ("cosine",),
+        "--env-steps": ("0", "-1", "1e6"),
+        "--seed": ("-1", str(2**32), BIG, HUGE),
+        "--eval-every": ("-1",),
+        "--eval-envs": ("0",),
+        "--checkpoint-every": ("0", "-5"),
+        "--stop-after": ("0", "-1"),
+        "--backend": ("warp",),
+        "--preset": ("nope",),
+        "--pursuer.network.encoder": ("transformer",),
+        "--pursuer.network.width": ("0",),
+        "--pursuer.network.num-heads": ("3", "0"),
+        "--pursuer.network.hidden": ("0",),
+        "--evader.network.nearest-k": ("0",),
+        "--pursuer.reward-scale": ("0", "nan", "-1"),
+        "--env.reward.capture": ("nan", "inf"),
+        "--env.arena.radius": ("inf", "-1"),
+        "--env.max-steps": ("0",),
+    }
+    for flag, values in bad_values.items():
+        for value in values:
+            add(f"train{flag}-{value[:6]}", "train", *TINY_TRAIN, *out, flag, value)
+    add("train-both-fixed", "train", *TINY_TRAIN, *out, "--pursuer.policy", "scripted",
+        "--evader.policy", "scripted")  # fmt: skip
+    add("train-opponent-missing", "train", *TINY_TRAIN, *out, "--evader.policy", "no-such-run")
+    add("train-opponent-damaged", "train", *TINY_TRAIN, *out, "--evader.policy",
+        str(runs / "num_actions_off_by_one"))  # fmt: skip
+    add("train-unknown-flag", "train", *TINY_TRAIN, *out, "--learning-rate", "1e-3")
+    add("train-missing-value", "train", *TINY_TRAIN, *out, "--ppo.gamma")
+    add("train-view-value", "train", *TINY_TRAIN, *out, "--view=maybe")
+    add("train-out-file", "train", *TINY_TRAIN, "--out", str(w / "afile"))
+    add("train-out-under-file", "train", *TINY_TRAIN, "--out", str(w / "afile" / "run"))
+    add("train-out-holds-run", "train", *TINY_TRAIN, "--out", str(runs / "good"))
+    add("train-out-locked", "train", *TINY_TRAIN, "--out", str(w / "locked"))
+    for config in sorted((w / "configs").iterdir()):
+        add(f"train-config-{config.name}", "train", "--config", str(config), *out)
+    add("train-config-missing", "train", "--config", str(w / "missing.json"), *out)
+    add("train-config-dir", "train", "--config", str(w / "adir"), *out)
+    add("train-resume-missing", "train", "--resume", str(w / "missing"))
+    add("train-resume-file", "train", "--resume", str(w / "afile"))
+    add("train-resume-empty", "train", "--resume", str(w / "emptydir"))
+    add("train-resume-policy-only", "train", "--resume", str(runs / "good"))
+    add("train-resume-with-preset", "train", "--resume", str(runs / "good"), "--preset", "2-1-1")
+    add("train-resume-with-config", "train", "--resume", str(runs / "good"), "--config",
+        str(w / "configs" / "gamma.yaml"))  # fmt: skip
+    add("train-resume-and-out", "train", "--resume", str(runs / "good"), *out)
+    for name in ("only_unfinished_step", "meta_truncated", "num_actions_off_by_one"):
+        add(f"train-resume-damaged-{name}", "train", "--resume", str(runs / name))
+    return cases
+
+
+def _snapshot(root: Path) -> dict[str, tuple[int, int]]:
+    return {
+        str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns)
+        for p in sorted(root.rglob("*"))
+    }
+
+
+def _run(argv: list[str], capsys) -> tuple[int | None, str, str, str]:
+    """(exit code, stdout, stderr, what was raised other than SystemExit) of one invocation."""
+    raised = ""
+    code: int | None = 0
+    try:
+        main(argv)
+    except SystemExit as exit_:
+        code = exit_.code if isinstance(exit_.code, int) else 1
+    except BaseException as err:  # a crash: recorded, the table goes on
+        raised = f"{type(err).__name__}: {err}"
+        code = None
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err, raised
+
+
+def test_every_bad_input_gets_one_clear_error(world, capsys, monkeypatch):
+    work = world / "cwd"
+    work.mkdir(exist_ok=True)
+    monkeypatch.chdir(work)  # default outputs (results/latest, runs/...) would land here
+    cases = _cases(world)
+    unclear = []
+    with lock_run(world / "locked"):  # a trainer holds this one
+        for name, argv in cases:
+            before = _snapshot(world)
+            code, out, err, raised = _run(argv, capsys)
+            errors = [line for line in err.splitlines() if line.startswith("pe-mjx: error:")]
+            problems = []
+            if raised:
+                problems.append(f"raised {raised[:200]}")
+            if code != 2:
+                problems.append(f"exit code {code}")
+            if len(errors) != 1:
+                problems.append(f"{len(errors)} error lines")
+            if "Traceback" in err + out:
+                problems.append("traceback")
+            if "pe-mjx: error" in out:
+                problems.append("error on stdout")
+            if _snapshot(world) != before:
+                problems.append("the file system changed")
+            if problems:
+                unclear.append(f"{name}: {', '.join(problems)} | {err.strip()[-300:]}")
+    clear = len(cases) - len(unclear)
+    with capsys.disabled():
+        print(f"\nbad inputs: {len(cases)} tried, {clear} clear errors")
+    assert len(cases) >= 150
+    assert not unclear, "\n".join(unclear)
+
+
+def test_console_script_gives_one_line_and_exit_2(tmp_path):
+    """Through the real console script: a seed of 2**63 (an OverflowError traceback before)."""
+    exe = Path(sys.executable).parent / "pe-mjx"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "pe_mjx.cli"]
+    result = subprocess.run(
+        [*cmd, "scene", "--seed", BIG, "-o", "a.xml"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 2
+    assert result.stdout == ""
+    lines = [x for x in result.stderr.splitlines() if x.startswith("pe-mjx: error:")]
+    assert lines == [f"pe-mjx: error: --seed must be in [0, 2**32), got {BIG}"]
+    assert "Traceback" not in result.stderr
+    assert list(tmp_path.iterdir()) == []
