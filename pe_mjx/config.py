@@ -208,6 +208,12 @@ class RewardConfig:
     4000 at gamma 0.99; with r_s = 50 the pursuers learned to follow, not to capture."""
     evader_alive: float = 1.0
     """r_e: per-step reward of an evader that is still active."""
+    evader_flee: float = 0.0
+    """Weight, per metre, of the evaders' potential-based flee shaping (ours, not in the paper):
+    each step an evader gains evader_flee times the change of its distance to the nearest
+    pursuer, capped at flee_range. 0 disables it."""
+    flee_range: float = 2.0
+    """Distance in metres beyond which the flee shaping's potential stops growing."""
     opponent_danger_distance: float | None = None
     """d_danger of the evader's f_c terms to pursuers, in metres (None: danger_distance). The
     paper uses one d_danger for every f_c; a larger one here gives evaders a dense signal to
@@ -218,6 +224,8 @@ class RewardConfig:
         _check(self.collision <= 0, "reward.collision", "(r_c) must be <= 0")
         _check(self.danger_distance > 0, "reward.danger_distance", "must be > 0")
         _check(self.capture_distance > 0, "reward.capture_distance", "must be > 0")
+        _check(self.evader_flee >= 0, "reward.evader_flee", "must be >= 0")
+        _check(self.flee_range > 0, "reward.flee_range", "must be > 0")
         _check(
             self.opponent_danger_distance is None or self.opponent_danger_distance > 0,
             "reward.opponent_danger_distance",

@@ -54,6 +54,9 @@ MASK_MARGIN = 1e-4
 MJX_POSE_TOL = 1e-4
 
 
+EVADER_TERMS = ("wall", "obstacle", "teammate", "opponent", "alive", "flee")
+
+
 @struct.dataclass
 class World:
     """The game state, for all N agents (pursuers first) of one arena."""
@@ -394,10 +397,11 @@ class PursuitEvasionEnv:
         terms = self._reward_terms(
             pos, was_active, active, events["capture_pairs"], w.obstacles, geom
         )
+        terms["evader"]["flee"] = self._flee_term(w.pos, pos, was_active)
         reward = {}
         for team, names in (
             ("pursuer", ("wall", "obstacle", "teammate", "pursuit", "capture", "opponent")),
-            ("evader", ("wall", "obstacle", "teammate", "opponent", "alive")),
+            ("evader", EVADER_TERMS),
         ):
             total = sum(terms[team][name] for name in names)
             reward[team] = jnp.where(self.split(was_active)[team], total, 0.0)
@@ -562,7 +566,7 @@ class PursuitEvasionEnv:
         z = {"pursuer": jnp.zeros(p), "evader": jnp.zeros(e)}
         names = {
             "pursuer": ("wall", "obstacle", "teammate", "pursuit", "capture", "opponent"),
-            "evader": ("wall", "obstacle", "teammate", "opponent", "alive"),
+            "evader": EVADER_TERMS,
         }
         return {t: {n: z[t] for n in names[t]} for t in TEAMS}
 
@@ -603,7 +607,12 @@ class PursuitEvasionEnv:
         capture = jnp.sum(jnp.where(capture_pairs, rc.capture, 0.0), axis=1)
         inactive_other = ~evader_active & ~capture_pairs
         pursuer_opp = jnp.sum(jnp.where(inactive_other, pair_fc[:p, p:], 0.0), axis=1)
-        evader_opp = jnp.sum(pair_fc[p:, :p], axis=1)
+        opp_danger = rc.opponent_danger_distance
+        if opp_danger is not None and opp_danger != rc.danger_distance:
+            gap_ep = dist[p:, :p] - r[p:, None] - r[None, :p]
+            evader_opp = jnp.sum(collision_reward(gap_ep, rc.collision, opp_danger), axis=1)
+        else:
+            evader_opp = jnp.sum(pair_fc[p:, :p], axis=1)
         alive = jnp.where(active[p:], rc.evader_alive, 0.0)
         return {
             "pursuer": {
@@ -622,6 +631,24 @@ class PursuitEvasionEnv:
                 "alive": alive,
             },
         }
+
+    def _flee_term(self, old_pos: jax.Array, pos: jax.Array, was_active: jax.Array) -> jax.Array:
+        """Potential-based evader shaping (ours, not the paper's): `reward.evader_flee` times the
+        change of Phi = min(distance to the nearest pursuer active before the step, flee_range).
+
+        Moving away from the nearest pursuer pays at once; a potential difference leaves the
+        optimal policy unchanged (Ng, Harada and Russell, 1999). [E]
+        """
+        rc, p = self.config.reward, self.num_pursuers
+        if rc.evader_flee == 0.0:
+            return jnp.zeros(self.num_evaders)
+
+        def potential(x: jax.Array) -> jax.Array:
+            d = jnp.linalg.norm(x[p:, None, :] - x[None, :p, :], axis=-1)  # [E, P]
+            d = jnp.where(was_active[None, :p], d, jnp.inf)
+            return jnp.minimum(jnp.min(d, axis=1), rc.flee_range)
+
+        return rc.evader_flee * (potential(pos) - potential(old_pos))
 
     def _metrics(
         self,

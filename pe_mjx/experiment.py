@@ -183,11 +183,18 @@ class TeamTraining:
     """The team's actor-critic (used when policy is learn)."""
     reward_scale: float = 0.1
     """The team's rewards are multiplied by this before GAE (positive)."""
+    learning_rate: float | None = None
+    """The team's Adam step size (None: ppo.learning_rate)."""
 
     def __post_init__(self) -> None:
         check_finite(self)
         _check(bool(self.policy), "policy", "must be learn, scripted, random or a run")
         _check(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
+        _check(
+            self.learning_rate is None or self.learning_rate > 0,
+            "learning_rate",
+            f"must be > 0 or None, got {self.learning_rate}",
+        )
 
     @property
     def learns(self) -> bool:

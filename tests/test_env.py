@@ -34,7 +34,7 @@ from pe_mjx.env import CAPTURE, OBSTACLE, OPPONENT, TEAMMATE, WALL, AutoResetWra
 BACKENDS = ("kinematic", "mjx")
 TEAMS = ("pursuer", "evader")
 PURSUER_TERMS = {"wall", "obstacle", "teammate", "pursuit", "capture", "opponent"}
-EVADER_TERMS = {"wall", "obstacle", "teammate", "opponent", "alive"}
+EVADER_TERMS = {"wall", "obstacle", "teammate", "opponent", "alive", "flee"}
 OBS_KEYS = {
     "own",
     "teammates",

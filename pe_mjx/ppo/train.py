@@ -110,18 +110,24 @@ class Trainer:
             self.mesh, jax.sharding.PartitionSpec("data")
         )
         self.replicated = jax.sharding.NamedSharding(self.mesh, jax.sharding.PartitionSpec())
-        self.optimizer = optax.chain(
-            optax.clip_by_global_norm(config.ppo.max_grad_norm),
-            optax.adam(self._schedule()),
-        )
+        self.optimizers = {
+            t: optax.chain(
+                optax.clip_by_global_norm(config.ppo.max_grad_norm),
+                optax.adam(self.schedule(t)),
+            )
+            for t in self.learned
+        }
 
-    def _schedule(self) -> optax.Schedule | float:
+    def schedule(self, team: str) -> optax.Schedule:
+        """The team's learning rate per gradient step (its own `learning_rate` if set, else
+        `ppo.learning_rate`; decayed linearly to 0 over the budget unless constant)."""
         ppo = self.config.ppo
+        lr = self.config.team(team).learning_rate or ppo.learning_rate
         if ppo.lr_schedule == "constant":
-            return ppo.learning_rate
+            return optax.constant_schedule(lr)
         updates_per_iter = ppo.update_epochs * ppo.num_minibatches
         return optax.linear_schedule(
-            ppo.learning_rate, 0.0, transition_steps=self.config.num_iterations * updates_per_iter
+            lr, 0.0, transition_steps=self.config.num_iterations * updates_per_iter
         )
 
     # ------------------------------------------------------------------ init
@@ -149,7 +155,7 @@ class Trainer:
             params = self.networks[team].init(net_rng, obs)
             teams[team] = TeamState(
                 params=params,
-                opt_state=self.optimizer.init(params),
+                opt_state=self.optimizers[team].init(params),
                 normalizer=init_normalizer(obs),
             )
         teams = jax.lax.with_sharding_constraint(teams, self.replicated)
@@ -245,7 +251,9 @@ class Trainer:
             value_coef=cfg.value_coef,
             entropy_coef=cfg.entropy_coef,
         )
-        update = gradients.gradient_update_fn(loss_fn, self.optimizer, None, has_aux=True)
+        update = gradients.gradient_update_fn(
+            loss_fn, self.optimizers[team], None, has_aux=True
+        )
         n = batch.actions.shape[0]
         mb = n // cfg.num_minibatches
 
