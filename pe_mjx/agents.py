@@ -7,6 +7,7 @@ one statistic per entity type over its feature axis (independent of entity count
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -56,6 +57,21 @@ def update_normalizer(
     return new
 
 
+def policy_apply(network: Any, deterministic: bool = False) -> Callable[..., jax.Array]:
+    """`apply(variables, obs, rng) -> actions` with the learned state as an argument.
+
+    `variables` is `{"params": ..., "normalizer": ...}`. Unlike `learned_policy`, which closes
+    over them, a jitted caller takes them as inputs, so one compile serves every policy of the
+    same network shape (the evaluator compiles once per shape, not once per pairing).
+    """
+
+    def apply(variables: dict[str, Any], obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
+        logits, _ = network.apply(variables["params"], normalize_obs(obs, variables["normalizer"]))
+        return greedy_actions(logits) if deterministic else sample_actions(logits, rng)
+
+    return apply
+
+
 def learned_policy(
     network: Any, params: Any, normalizer: dict[str, Any], deterministic: bool = False
 ) -> Policy:
@@ -63,9 +79,10 @@ def learned_policy(
 
     `obs` is one team's observation dict with any leading dims ([A, ...] for one arena).
     """
+    apply = policy_apply(network, deterministic)
+    variables = {"params": params, "normalizer": normalizer}
 
     def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
-        logits, _ = network.apply(params, normalize_obs(obs, normalizer))
-        return greedy_actions(logits) if deterministic else sample_actions(logits, rng)
+        return apply(variables, obs, rng)
 
     return policy

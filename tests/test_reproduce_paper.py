@@ -1,4 +1,4 @@
-"""tools/reproduce_paper.py end to end at a tiny budget: trains, evaluates, writes the report,
+"""`pe-mjx reproduce` end to end at a tiny budget: trains, evaluates, writes the report,
 and resumes without redoing anything."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-SCRIPT = [sys.executable, str(ROOT / "tools" / "reproduce_paper.py")]
+SCRIPT = [str(Path(sys.executable).parent / "pe-mjx"), "reproduce"]
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
@@ -51,5 +51,6 @@ def test_tiny_table_ii_and_resume(tmp_path):
 
 def test_unknown_table_is_an_error(tmp_path):
     out = _run("--tables", "IX", "--skip-train", "--runs", str(tmp_path))
-    assert out.returncode != 0
-    assert "unknown tables ['IX']" in out.stderr
+    assert out.returncode == 2
+    assert out.stderr.startswith("pe-mjx: error:") and "IX" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
