@@ -498,6 +498,50 @@ def run_demo(args: DemoArgs) -> None:
         print(f"{key:>28s}: {value}")
 
 
+@dataclasses.dataclass(frozen=True)
+class ExportArgs:
+    """Write one team's policy of a run as a self-contained file: StableHLO through `jax.export`
+    (the greedy policy, normaliser and parameters folded in), run by pe_mjx/export_loader.py with
+    only jax and numpy, e.g. on a robot's computer (README, "Running a policy on robots")."""
+
+    run: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
+    """A `pe-mjx train` run directory (e.g. assets/policies/mix-20-5-8)."""
+    output: Annotated[Path, tyro.conf.arg(aliases=("-o",))] = Path("policy.jaxexport")
+    """Where to write the policy file (a zip of policy.stablehlo and meta.json)."""
+    team: Literal["pursuer", "evader"] = "pursuer"
+    """Which of the run's policies to export."""
+    preset: PresetName | None = None
+    """Scene whose counts fix the input shapes; smaller scenes are padded by the loader (default:
+    the run's own scene; 4-2-2 is the paper's robot setup)."""
+    force: bool = False
+    """Overwrite an existing output file."""
+
+
+def run_export(args: ExportArgs) -> None:
+    if args.output.is_dir():
+        _fail(f"--output: {args.output} is a directory; give the path of the file to write")
+    if args.output.exists() and not args.force:
+        _fail(f"--output: {args.output} exists; pass --force to overwrite it")
+    if not args.output.parent.is_dir():
+        _fail(f"--output: directory {args.output.parent} does not exist")
+    _check_writable_dir("--output", args.output.parent)
+    from pe_mjx.config import get_preset
+    from pe_mjx.policy_export import export_policy, write_policy
+    from pe_mjx.ppo.checkpoint import CheckpointError
+
+    config = None if args.preset is None else get_preset(args.preset)
+    try:
+        program, info = export_policy(args.run, args.team, config)
+    except CheckpointError as err:
+        _fail(str(err))
+    try:
+        size = write_policy(args.output, program, info)
+    except OSError as err:
+        _fail(f"cannot write {args.output}: {err}")
+    counts = ", ".join(f"{n} {k}" for k, n in info["counts"].items())
+    print(f"wrote {args.output} ({size:,} bytes): the {args.team} policy of {args.run} ({counts})")
+
+
 def _one_line(box: str) -> str:
     """tyro's boxed error message as one line (its text without the frame and the help hint)."""
     parts = []
@@ -546,6 +590,7 @@ def main(argv: list[str] | None = None) -> None:
         "train": (TrainArgs, run_train),
         "view": (ViewArgs, run_view),
         "evaluate": (EvaluateArgs, run_evaluate),
+        "export": (ExportArgs, run_export),
     }
     argv = sys.argv[1:] if argv is None else list(argv)
     subcommands = {name: cls for name, (cls, _) in commands.items()}

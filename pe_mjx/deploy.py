@@ -251,5 +251,5 @@ class Controller:
             actions = np.asarray(policy(obs[team], rng)).astype(np.int64)
             v, omega = (table[actions] for table in self.actions[team])
             active = self._active(down, team)
-            out[team] = np.stack([v, omega], axis=-1).astype(np.float64) * active[:, None]
+            out[team] = np.where(active[:, None], np.stack([v, omega], axis=-1), 0.0)
         return out

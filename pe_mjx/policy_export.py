@@ -1,0 +1,111 @@
+"""`pe-mjx export`: a run's team policy as one self-contained StableHLO file (`jax.export`).
+
+The exported function is the greedy policy of `pe_mjx.load_policy(run, team, deterministic=True)`
+with the observation normaliser and the parameters folded in as constants; see
+`pe_mjx.export_loader` (jax and numpy only) for the file layout and how to run it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from jax import export
+
+from pe_mjx.agents import normalize_obs
+from pe_mjx.config import EnvConfig, other_team
+from pe_mjx.env import action_table
+from pe_mjx.export_loader import FORMAT, META, PROGRAM, VERSION
+from pe_mjx.networks import greedy_actions
+from pe_mjx.ppo.checkpoint import CheckpointError, dummy_obs, restore_policy_params
+
+INPUTS = (
+    "own",
+    "teammates",
+    "opponents",
+    "obstacles",
+    "teammate_mask",
+    "opponent_mask",
+    "obstacle_mask",
+    "action_mask",
+)
+# Lowered for both, so that one file runs on a robot computer's CPU or NVIDIA GPU.
+PLATFORMS = ("cpu", "cuda")
+
+
+def export_policy(
+    run_dir: str | Path, team: str, config: EnvConfig | None = None
+) -> tuple[bytes, dict[str, Any]]:
+    """(serialised `jax.export` program, metadata) of one team's greedy policy.
+
+    Args:
+      run_dir: a `pe-mjx train` run directory.
+      team: "pursuer" or "evader".
+      config: the scene whose counts fix the input shapes (default: the run's own scene).
+    """
+    network, state, net_config, meta = restore_policy_params(run_dir, team)
+    config = EnvConfig.from_dict(meta["env_config"]) if config is None else config
+    have, want = int(meta["num_actions"][team]), config.team(team).num_actions
+    if have != want:
+        raise CheckpointError(
+            f"the {team} policy in {run_dir} has {have} actions but the {config.name} {team}s "
+            f"have {want}"
+        )
+    params, normalizer = state["params"], state["normalizer"]
+
+    def greedy(*arrays: jax.Array) -> tuple[jax.Array, jax.Array]:
+        obs = dict(zip(INPUTS, arrays, strict=True))
+        logits, _ = network.apply(params, normalize_obs(obs, normalizer))
+        return greedy_actions(logits), logits
+
+    obs = dummy_obs(config, team)
+    specs = [jax.ShapeDtypeStruct(obs[k].shape, obs[k].dtype) for k in INPUTS]
+    exported = export.export(jax.jit(greedy), platforms=PLATFORMS)(*specs)
+    v, omega = action_table(config.team(team))
+    info = {
+        "format": FORMAT,
+        "version": VERSION,
+        "team": team,
+        "inputs": [
+            {"name": k, "shape": list(s.shape), "dtype": np.dtype(s.dtype).name}
+            for k, s in zip(INPUTS, specs, strict=True)
+        ],
+        "outputs": [
+            {"name": "actions", "shape": [config.team(team).num_agents], "dtype": "int32"},
+            {"name": "logits", "shape": [config.team(team).num_agents, want], "dtype": "float32"},
+        ],
+        "action_table": {"v": v.tolist(), "omega": omega.tolist()},
+        "counts": {
+            f"{team}s": config.team(team).num_agents,
+            f"{other_team(team)}s": config.team(other_team(team)).num_agents,
+            "obstacles": config.arena.num_obstacles,
+        },
+        "env_config": config.to_dict(),
+        "network_config": net_config.to_dict(),
+        "source": {"run": str(run_dir), "step": int(meta["step"])},
+        "platforms": list(PLATFORMS),
+        "jax_version": jax.__version__,
+    }
+    return bytes(exported.serialize()), info
+
+
+def write_policy(path: str | Path, program: bytes, info: dict[str, Any]) -> int:
+    """Writes the file atomically (a temporary file renamed); returns its size in bytes."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f, zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED) as archive:
+            archive.writestr(META, json.dumps(info, indent=2, sort_keys=True))
+            archive.writestr(PROGRAM, program)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path.stat().st_size
