@@ -505,7 +505,7 @@ class ExportArgs:
     only jax and numpy, e.g. on a robot's computer (README, "Running a policy on robots")."""
 
     run: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
-    """A `pe-mjx train` run directory (e.g. assets/policies/mix-20-5-8)."""
+    """A `pe-mjx train` run directory or a shipped policy's name (mix-20-5-8)."""
     output: Annotated[Path, tyro.conf.arg(aliases=("-o",))] = Path("policy.jaxexport")
     """Where to write the policy file (a zip of policy.stablehlo and meta.json)."""
     team: Literal["pursuer", "evader"] = "pursuer"
