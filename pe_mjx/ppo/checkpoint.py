@@ -14,8 +14,12 @@ a save leaves the previous step loadable; `CheckpointManager` keeps the last `MA
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import os
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import jax
 import jax.numpy as jnp
@@ -33,15 +37,94 @@ FORMAT_VERSION = 2
 READABLE_FORMATS = (1, 2)
 MAX_TO_KEEP = 3
 CHECKPOINT_DIR = "checkpoints"
+# Sane bounds on what a checkpoint's metadata may declare, checked before anything is built from
+# it (a crafted `num_agents: 20000` made the loader allocate 9.6 GB).
+MAX_ENTITIES = 1000
+MAX_LAYER_WIDTH = 4096
 
 
 class CheckpointError(ValueError):
     """A missing, unreadable or mismatched checkpoint."""
 
 
+class CheckpointWriteError(CheckpointError):
+    """A checkpoint could not be written (the directory became unwritable, the disk is full).
+
+    When orbax itself failed midway, its worker threads may wait forever for signals that never
+    come and keep the interpreter from exiting: a command line ends with `os._exit`."""
+
+
+LOCK_FILE = ".lock"
+
+
+@contextlib.contextmanager
+def lock_run(run_dir: Path) -> Iterator[None]:
+    """Holds an exclusive lock on a run directory (`flock` on `run_dir/.lock`) while a trainer
+    uses it; a second trainer gets a `CheckpointError`. The kernel releases it when the process
+    ends, however it ends."""
+    import fcntl
+
+    try:
+        fd = os.open(run_dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as err:
+        raise CheckpointError(f"{run_dir}: cannot create its lock file: {err.strerror}") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise CheckpointError(
+                f"{run_dir} is in use by another pe-mjx train (locked); wait for it to end or "
+                f"choose another --out"
+            ) from None
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def has_complete_checkpoint(run_dir: Path) -> bool:
+    """Whether `run_dir/checkpoints` holds a finished step (orbax names a finished step by its
+    number; a save that was killed leaves only `<step>.orbax-checkpoint-tmp-*`)."""
+    directory = run_dir / CHECKPOINT_DIR
+    return directory.is_dir() and any(p.name.isdigit() for p in directory.iterdir())
+
+
+def _check_writable(directory: Path, step: int) -> None:
+    """Writes, syncs and removes a small probe file: an unwritable directory or a full disk is
+    reported before orbax starts (its threads hang when a save fails midway)."""
+    probe = directory / f".write-probe-{os.getpid()}"
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with open(probe, "wb") as f:
+            f.write(b"\0" * 65536)
+            f.flush()
+            os.fsync(f.fileno())
+        probe.unlink()
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            probe.unlink()
+        raise CheckpointWriteError(
+            f"cannot write checkpoint {step} to {directory}: {err.strerror or err}"
+        ) from None
+
+
 def _short(err: Exception, limit: int = 300) -> str:
     text = f"{type(err).__name__}: {err}"
     return text if len(text) <= limit else text[:limit] + " ..."
+
+
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """Silences orbax's and absl's logging while a checkpoint is read: a damaged file is reported
+    as one `CheckpointError`, not followed by pages of library tracebacks."""
+    loggers = [logging.getLogger(name) for name in ("absl", "orbax", "tensorstore")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
 
 
 def _is_key(x: Any) -> bool:
@@ -101,17 +184,23 @@ def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
         "network_configs": {t: c.to_dict() for t, c in trainer.network_configs.items()},
         "num_actions": {t: trainer.env_config.team(t).num_actions for t in TEAMS},
     }
-    with _manager(run_dir, create=True) as mngr:
-        mngr.save(
-            step,
-            args=ocp.args.Composite(
-                train=ocp.args.StandardSave(_flat(keys_to_data(train_state))),
-                **policies,
-                meta=ocp.args.JsonSave(meta),
-            ),
-            force=True,
-        )
-        mngr.wait_until_finished()
+    _check_writable(run_dir / CHECKPOINT_DIR, step)
+    try:
+        with _manager(run_dir, create=True) as mngr:
+            mngr.save(
+                step,
+                args=ocp.args.Composite(
+                    train=ocp.args.StandardSave(_flat(keys_to_data(train_state))),
+                    **policies,
+                    meta=ocp.args.JsonSave(meta),
+                ),
+                force=True,
+            )
+            mngr.wait_until_finished()
+    except Exception as err:
+        raise CheckpointWriteError(
+            f"cannot write checkpoint {step} to {run_dir / CHECKPOINT_DIR}: {_short(err)}"
+        ) from None
     return step
 
 
@@ -120,11 +209,85 @@ def _latest_step(run_dir: Path) -> int:
         raise CheckpointError(f"no run at {run_dir}: the directory does not exist")
     if not (run_dir / CHECKPOINT_DIR).is_dir():
         raise CheckpointError(f"{run_dir} holds no checkpoints (no {CHECKPOINT_DIR}/ directory)")
-    with _manager(run_dir, create=False) as mngr:
-        step = mngr.latest_step()
+    try:
+        with _quiet(), _manager(run_dir, create=False) as mngr:
+            step = mngr.latest_step()
+    except Exception as err:  # an unreadable directory, a damaged step name
+        raise CheckpointError(f"{run_dir}: cannot list its checkpoints: {_short(err)}") from None
     if step is None:
-        raise CheckpointError(f"{run_dir} holds no complete checkpoint")
+        raise CheckpointError(
+            f"{run_dir} holds no complete checkpoint (a run stopped during its first save?); "
+            f"`pe-mjx train --out {run_dir}` starts it afresh"
+        )
     return step
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def check_meta(meta: Any, where: str) -> None:
+    """Checks a checkpoint's metadata against its schema and sane bounds before anything is
+    built from it; raises `CheckpointError` naming the first bad field."""
+    from pe_mjx.experiment import ExperimentConfig
+
+    def bad(message: str) -> NoReturn:
+        raise CheckpointError(f"{where} has invalid metadata: {message}")
+
+    if not isinstance(meta, dict):
+        bad("not a JSON object")
+    for key in ("format_version", "env_config", "network_configs", "num_actions"):
+        if key not in meta:
+            bad(f"{key} is missing")
+    version = meta["format_version"]
+    if not _is_int(version) or version not in READABLE_FORMATS:
+        raise CheckpointError(
+            f"checkpoint format {version!r} in {where} is not supported (this pe-mjx reads "
+            f"formats {READABLE_FORMATS})"
+        )
+    for key in ("iteration", "env_steps"):
+        if key in meta and not (_is_int(meta[key]) and meta[key] >= 0):
+            bad(f"{key} must be an integer >= 0, got {meta[key]!r}")
+    try:
+        env_config = EnvConfig.from_dict(meta["env_config"])
+    except (TypeError, ValueError) as err:
+        bad(f"env_config: {err}")
+    counts = {
+        "env_config.pursuer.num_agents": env_config.pursuer.num_agents,
+        "env_config.evader.num_agents": env_config.evader.num_agents,
+        "env_config.arena.num_obstacles": env_config.arena.num_obstacles,
+    }
+    for field, count in counts.items():
+        if count > MAX_ENTITIES:
+            bad(f"{field} is {count}, more than the {MAX_ENTITIES} a checkpoint may hold")
+    networks, actions = meta["network_configs"], meta["num_actions"]
+    if not isinstance(networks, dict) or not networks or set(networks) - set(TEAMS):
+        bad(f"network_configs must map some of {TEAMS} to network configs")
+    if not isinstance(actions, dict):
+        bad("num_actions must map teams to action counts")
+    for team, net in networks.items():
+        try:
+            net_config = NetworkConfig.from_dict(net)
+        except (TypeError, ValueError) as err:
+            bad(f"network_configs.{team}: {err}")
+        for field in ("width", "hidden"):
+            if getattr(net_config, field) > MAX_LAYER_WIDTH:
+                bad(f"network_configs.{team}.{field} is above {MAX_LAYER_WIDTH}")
+        if (net_config.nearest_k or 0) > MAX_ENTITIES:
+            bad(f"network_configs.{team}.nearest_k is above {MAX_ENTITIES}")
+        want = env_config.team(team).num_actions
+        if actions.get(team) != want or not _is_int(actions.get(team)):
+            bad(
+                f"num_actions.{team} is {actions.get(team)!r} but its env_config gives the "
+                f"{team}s {want} actions"
+            )
+    if version >= 2:
+        try:
+            experiment = ExperimentConfig.from_dict(meta.get("experiment"))
+        except (TypeError, ValueError) as err:
+            bad(f"experiment: {err}")
+        if experiment.env != env_config:
+            bad("experiment.env differs from env_config")
 
 
 def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
@@ -133,22 +296,13 @@ def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
     run_dir = resolve_run(run_dir)
     step = _latest_step(run_dir) if step is None else step
     try:
-        with _manager(run_dir, create=False) as mngr:
+        with _quiet(), _manager(run_dir, create=False) as mngr:
             meta = mngr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
     except Exception as err:  # orbax raises many types for a damaged step
         raise CheckpointError(
             f"checkpoint {step} in {run_dir} is unreadable: {_short(err)}"
         ) from None
-    required = ("format_version", "env_config", "network_configs", "num_actions")
-    if not isinstance(meta, dict) or any(k not in meta for k in required):
-        raise CheckpointError(f"checkpoint {step} in {run_dir} has malformed metadata")
-    if meta["format_version"] not in READABLE_FORMATS:
-        raise CheckpointError(
-            f"checkpoint format {meta['format_version']!r} in {run_dir} is not supported "
-            f"(this pe-mjx reads formats {READABLE_FORMATS})"
-        )
-    if meta["format_version"] >= 2 and "experiment" not in meta:
-        raise CheckpointError(f"checkpoint {step} in {run_dir} has malformed metadata")
+    check_meta(meta, f"checkpoint {step} in {run_dir}")
     meta["step"] = step
     return meta
 
@@ -191,13 +345,13 @@ def restore_policy_params(
     except (TypeError, ValueError) as err:
         raise CheckpointError(f"checkpoint in {run_dir} has an invalid config: {err}") from None
     network = make_network(net_config, int(meta["num_actions"][team]))
-    obs = dummy_obs(env_config, team)
+    obs = jax.eval_shape(lambda: dummy_obs(env_config, team))  # shapes only: no allocation
     abstract = {
         "params": jax.eval_shape(network.init, jax.random.key(0), obs),
         "normalizer": jax.eval_shape(init_normalizer, obs),
     }
     try:
-        with _manager(run_dir, create=False) as mngr:
+        with _quiet(), _manager(run_dir, create=False) as mngr:
             restored = mngr.restore(
                 meta["step"],
                 args=ocp.args.Composite(**{f"policy_{team}": ocp.args.StandardRestore(abstract)}),
@@ -207,7 +361,21 @@ def restore_policy_params(
             f"the {team} policy in {run_dir} (step {meta['step']}) cannot be restored: "
             f"{_short(err)}"
         ) from None
+    if not all_finite(restored):
+        raise CheckpointError(
+            f"the {team} policy in {run_dir} (step {meta['step']}) holds non-finite parameters "
+            f"(NaN or inf): the run diverged; play an earlier checkpoint or retrain"
+        )
     return network, restored, net_config, meta
+
+
+def all_finite(tree: Any) -> bool:
+    """Whether every floating-point leaf of `tree` is finite (no NaN, no inf)."""
+    return all(
+        bool(np.all(np.isfinite(np.asarray(x))))
+        for x in jax.tree.leaves(tree)
+        if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+    )
 
 
 def load_policy(
@@ -267,7 +435,7 @@ def restore_train_state(run_dir: str | Path, trainer: Trainer) -> TrainState:
     template = trainer.abstract_state()
     abstract = jax.eval_shape(keys_to_data, template)
     try:
-        with _manager(run_dir, create=False) as mngr:
+        with _quiet(), _manager(run_dir, create=False) as mngr:
             restored = mngr.restore(
                 step, args=ocp.args.Composite(train=ocp.args.StandardRestore(_flat(abstract)))
             ).train

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -125,21 +126,57 @@ def train(
       stop_after: stop (with a checkpoint) after this many iterations of this call; for tests
         and for chunked runs on machines with a time limit.
       on_iteration: called after every iteration with the host-side metrics (live viewer).
+
+    The run directory is locked (`checkpoint.lock_run`) while this runs. A NaN or inf in a loss
+    or in the parameters stops the run with `TrainingError` before anything non-finite is saved:
+    the last checkpoint stays the last good one. A checkpoint that cannot be written raises
+    `checkpoint.CheckpointWriteError`.
     """
+    run_dir = Path(out)
+    if not resume and checkpoint.has_complete_checkpoint(run_dir):
+        raise ValueError(
+            f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or "
+            f"choose another --out"
+        )
+    if resume:
+        if not run_dir.is_dir():
+            raise checkpoint.CheckpointError(f"no run at {run_dir}: the directory does not exist")
+    else:
+        try:
+            run_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise checkpoint.CheckpointError(
+                f"cannot create the run directory {run_dir}: {err.strerror or err}"
+            ) from None
+    with checkpoint.lock_run(run_dir):
+        return _train(config, run_dir, resume, progress, stop_after, on_iteration)
+
+
+class TrainingError(RuntimeError):
+    """Training stopped because it went wrong (non-finite losses or parameters)."""
+
+
+@jax.jit
+def _params_finite(teams: dict[str, Any]) -> jax.Array:
+    leaves = [x for x in jax.tree.leaves(teams) if jnp.issubdtype(x.dtype, jnp.floating)]
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+
+
+def _train(
+    config: ExperimentConfig,
+    run_dir: Path,
+    resume: bool,
+    progress: bool,
+    stop_after: int | None,
+    on_iteration: Callable[[Trainer, TrainState, dict[str, float]], None] | None,
+) -> tuple[Trainer, TrainState]:
     from tensorboardX import SummaryWriter
 
-    run_dir = Path(out)
     trainer = Trainer(config, opponents=resolve_opponents(config))
-    if resume:
-        state = checkpoint.restore_train_state(run_dir, trainer)
-    else:
-        if (run_dir / checkpoint.CHECKPOINT_DIR).exists():
-            raise ValueError(
-                f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or "
-                f"choose another --out"
-            )
-        run_dir.mkdir(parents=True, exist_ok=True)
-        state = trainer.init()
+    # A fresh run may reuse a directory whose checkpoints/ holds no finished step (a run killed
+    # during its first save): orbax ignores and replaces the unfinished temporary steps.
+    state = checkpoint.restore_train_state(run_dir, trainer) if resume else trainer.init()
+    last_saved = int(state.iteration) if resume else None
     _write_config(run_dir, trainer)
     iteration_fn = jax.jit(trainer.iteration, donate_argnums=0)
     evaluate_fn = jax.jit(trainer.evaluate)
@@ -166,10 +203,26 @@ def train(
             speed="",
             success="",
         )
+        # The first iteration compiles (a minute for the paper's scenes on a CPU).
+        bar.update(task, description=f"{config.preset} compiling...")
         tic = time.perf_counter()
         for it in range(start, end):
             state, metrics = iteration_fn(state)
+            if it == start:
+                bar.update(task, description=config.preset)
             host = {k: float(v) for k, v in jax.device_get(metrics).items()}
+            bad = [k for k, v in host.items() if k.startswith("loss/") and not np.isfinite(v)]
+            if bad or not bool(_params_finite(state.teams)):
+                kept = (
+                    "no checkpoint was saved"
+                    if last_saved is None
+                    else f"the last good checkpoint (iteration {last_saved}) is kept"
+                )
+                raise TrainingError(
+                    f"training diverged at iteration {it + 1}: "
+                    f"{', '.join(bad) or 'the parameters'} became NaN or inf; {kept}. Try a lower "
+                    f"--ppo.learning-rate or --ppo.max-grad-norm"
+                )
             toc = time.perf_counter()
             speed = config.steps_per_iteration / (toc - tic)
             tic = toc
@@ -198,7 +251,7 @@ def train(
             if on_iteration is not None:
                 on_iteration(trainer, state, host)
             if done_iters % config.checkpoint_every == 0 or done_iters == end:
-                checkpoint.save(run_dir, trainer, state)
+                last_saved = checkpoint.save(run_dir, trainer, state)
     writer.close()
     return trainer, state
 

@@ -278,3 +278,88 @@ def test_a_team_can_be_frozen_at_a_checkpoint(runs):
     frozen = trainer.fixed["evader"](obs, key)
     direct = load_policy(root / "straight", team="evader")(obs, key)
     np.testing.assert_array_equal(np.asarray(frozen), np.asarray(direct))
+
+
+def test_non_finite_parameters_stop_the_run_and_keep_the_last_good_checkpoint(
+    tmp_path, monkeypatch
+):
+    """A NaN in the parameters at iteration 3 stops the run before anything non-finite is saved;
+    checkpoint 2 stays the latest. The directory held only an unfinished first save (a kill
+    during it), which a fresh run may reuse."""
+    from pe_mjx.ppo import run as run_mod
+
+    out = tmp_path / "diverged"
+    (out / "checkpoints" / "2.orbax-checkpoint-tmp-1").mkdir(parents=True)
+    calls = []
+
+    def finite(teams):
+        calls.append(1)
+        return len(calls) < 3
+
+    monkeypatch.setattr(run_mod, "_params_finite", finite)
+    with pytest.raises(run_mod.TrainingError, match=r"iteration 3.*last good checkpoint \(iter"):
+        train(CONFIG, out, progress=False)
+    assert checkpoint.read_meta(out)["iteration"] == 2
+    assert not (out / "checkpoints" / "4").exists()
+    with checkpoint.lock_run(out):  # released when train() ended
+        pass
+
+
+def test_loaders_refuse_non_finite_parameters(runs, tmp_path):
+    from pe_mjx.ppo.train import Trainer
+
+    root, _, _ = runs
+    run = tmp_path / "nan"
+    shutil.copytree(root / "straight", run)
+    trainer = Trainer(CONFIG)
+    state = checkpoint.restore_train_state(run, trainer)
+    teams = dict(state.teams)
+    teams["pursuer"] = teams["pursuer"].replace(
+        params=jax.tree.map(lambda x: x * jnp.nan, teams["pursuer"].params)
+    )
+    checkpoint.save(run, trainer, state.replace(teams=teams, iteration=state.iteration + 1))
+    with pytest.raises(CheckpointError, match="non-finite"):
+        load_policy(run, team="pursuer")
+    load_policy(run, team="evader")
+    assert checkpoint.all_finite({"a": np.ones(3), "b": np.arange(2)})
+    assert not checkpoint.all_finite({"a": np.array([1.0, np.inf])})
+
+
+def test_a_locked_run_directory_refuses_a_second_trainer(tmp_path):
+    out = tmp_path / "busy"
+    out.mkdir()
+    with checkpoint.lock_run(out):
+        with pytest.raises(CheckpointError, match="in use by another pe-mjx train"):
+            train(CONFIG, out, progress=False)
+        with pytest.raises(CheckpointError, match="in use"), checkpoint.lock_run(out):
+            pass
+    assert not (out / "checkpoints").exists()
+
+
+def test_an_unwritable_checkpoint_directory_fails_fast(runs, tmp_path):
+    """The save probes the directory before orbax starts (orbax's threads hang when a save
+    fails midway): a clear CheckpointWriteError within seconds."""
+    import os
+    import time
+
+    from pe_mjx.ppo.train import Trainer
+
+    root, _, _ = runs
+    run = tmp_path / "readonly"
+    shutil.copytree(root / "straight", run)
+    trainer = Trainer(CONFIG)
+    state = checkpoint.restore_train_state(run, trainer)
+    ckpt = run / "checkpoints"
+    if os.geteuid() == 0:  # root ignores permissions: a file where the directory was
+        shutil.rmtree(ckpt)
+        ckpt.write_text("the disk went away")
+    else:
+        ckpt.chmod(0o500)
+    try:
+        tic = time.monotonic()
+        with pytest.raises(checkpoint.CheckpointWriteError, match="cannot write checkpoint 5"):
+            checkpoint.save(run, trainer, state.replace(iteration=state.iteration + 1))
+        assert time.monotonic() - tic < 10
+    finally:
+        if ckpt.is_dir():
+            ckpt.chmod(0o700)
