@@ -233,6 +233,14 @@ class PursuitEvasionEnv:
         """Splits an [..., N, ...] per-agent array on axis -1 into teams."""
         return {t: x[..., s] for t, s in self.team_slices.items()}
 
+    def observe(self, world: World) -> dict[str, dict[str, jax.Array]]:
+        """The observations and action masks `step` would give for `world` (SPEC 2.5, 2.4).
+
+        Pure and jittable; only the poses, velocities, active flags and obstacles are read. For
+        controllers that build a `World` from measured poses (`pe_mjx.deploy`).
+        """
+        return self._observe(world)
+
     # ----------------------------------------------------------------- reset
 
     def reset(self, rng: jax.Array) -> State:
