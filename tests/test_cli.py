@@ -88,9 +88,10 @@ def test_train_interrupted_keeps_its_checkpoint_even_with_sigint_ignored(tmp_pat
     from pe_mjx.ppo.checkpoint import read_meta
 
     out = tmp_path / "run"
-    flags = "--preset 2-1-1 --backend kinematic --evader scripted --env-steps 1000000"
-    flags += " --num-envs 2 --unroll-length 4 --num-minibatches 1 --update-epochs 1 --width 8"
-    flags += " --num-heads 2 --hidden 16 --eval-every 0 --checkpoint-every 20"
+    flags = "--preset 2-1-1 --backend kinematic --evader.policy scripted --env-steps 1000000"
+    flags += " --ppo.num-envs 2 --ppo.unroll-length 4 --ppo.num-minibatches 1"
+    flags += " --ppo.update-epochs 1 --pursuer.network.width 8 --pursuer.network.num-heads 2"
+    flags += " --pursuer.network.hidden 16 --eval-every 0 --checkpoint-every 20"
     train = f"{shlex.quote(str(CLI))} train {flags} --out {shlex.quote(str(out))}"
     command = f"trap '' INT; exec {train}"
     log = tmp_path / "stderr.txt"
