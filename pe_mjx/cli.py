@@ -19,6 +19,7 @@ import tyro
 
 from pe_mjx.config import PRESETS
 from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.reproduce import ReproduceArgs
 
 
 def _fail(message: str) -> None:
@@ -48,12 +49,16 @@ def _check_backend(backend: str) -> None:
         _fail(f"--backend: unknown backend {backend!r}; expected mjx or kinematic")
 
 
+PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
+BackendName = Literal["mjx", "kinematic"]
+
+
 @dataclasses.dataclass(frozen=True)
 class SceneArgs:
     """Write the standalone MJCF of a preset's arena exactly as `env.reset(key(seed))` draws it."""
 
-    preset: str = "20-5-8"
-    """Scenario preset (P-E-K)."""
+    preset: PresetName = "20-5-8"
+    """Scenario preset (P-E-K: pursuers, evaders, obstacles)."""
     seed: int = 0
     """The seed given to `jax.random.key` for `env.reset`."""
     output: Annotated[Path, tyro.conf.arg(aliases=("-o",))] = Path("arena.xml")
@@ -66,14 +71,14 @@ class SceneArgs:
 class DemoArgs:
     """Play one scripted match (scripted pursuers against scripted evaders) and print the result."""
 
-    preset: str = "8-2-4"
+    preset: PresetName = "8-2-4"
+    """Scenario preset (P-E-K: pursuers, evaders, obstacles)."""
     seed: int = 0
-    backend: str = "kinematic"
+    """Seed of the arena draw (`jax.random.key`)."""
+    backend: BackendName = "kinematic"
+    """Env backend: mjx (MuJoCo MJX physics) or kinematic (exact arcs, faster to compile)."""
     steps: int = 1000
     """Control steps at most (the episode may end earlier)."""
-
-
-PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,6 +109,9 @@ class TrainArgs:
     view: bool = False
     """Show the latest policies playing in the browser while training runs (viewer on
     http://127.0.0.1:8080, or the next free port)."""
+    wandb_project: str | None = None
+    """Also log to this Weights & Biases project (pip install 'pe-mjx[wandb]';
+    WANDB_MODE=offline logs locally without an account)."""
 
 
 def _prescan(argv: list[str]) -> dict[str, str]:
@@ -199,6 +207,7 @@ def run_train(args: TrainArgs) -> None:
                 progress=args.progress,
                 stop_after=args.stop_after,
                 on_iteration=None if viewer is None else viewer.training_update,
+                wandb_project=args.wandb_project,
             )
         finally:
             if viewer is not None:
@@ -210,7 +219,34 @@ def run_train(args: TrainArgs) -> None:
         os._exit(2)
     except (CheckpointError, TrainingError) as err:
         _fail(str(err))
+    _training_summary(out, state)
+
+
+def _training_summary(out: Path, state) -> None:
+    """What the run reached (its last evaluation) and the commands to look at it."""
+    from pe_mjx.plots import read_scalars
+
     print(f"run {out}: {int(state.env_steps):,} env steps, iteration {int(state.iteration)}")
+    scalars = read_scalars(out)
+    for team, other in (("pursuer", "evader"), ("evader", "pursuer")):
+        found = scalars.get(f"eval/{team}_vs_scripted/success_rate")
+        if found:
+            step, value = found[-1]
+            print(
+                f"  last evaluation ({step:,} env steps), learned {team}s vs scripted {other}s: "
+                f"pursuer success {value:.3f}"
+            )
+    learned = set(state.teams)
+    pursuers = str(out) if "pursuer" in learned else "scripted"
+    evaders = str(out) if "evader" in learned else "scripted"
+    print("next:")
+    print(
+        f"  pe-mjx evaluate --pursuers {' '.join(dict.fromkeys([pursuers, 'scripted']))} "
+        f"--evaders {' '.join(dict.fromkeys([evaders, 'scripted']))} --out {out}/eval"
+    )
+    print(f"  pe-mjx view --pursuers {pursuers} --evaders {evaders}")
+    print(f"  pe-mjx plot {out}")
+    print(f"  tensorboard --logdir {out}/tb   (pip install 'pe-mjx[tensorboard]')")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -220,18 +256,21 @@ class ViewArgs:
     Prints the local URL; the page shows the arenas in 3D and updates live. With --export it
     writes <export>.viser and <export>.html (a page that plays without a server) and exits."""
 
-    preset: str = "20-5-8"
+    preset: PresetName = "20-5-8"
     """Scenario preset (P-E-K); entity counts can be changed in the GUI."""
     pursuers: str = "scripted"
-    """Pursuer policy: "scripted", "random", or a `pe-mjx train` run directory."""
+    """Pursuer policy: "scripted", "random", a shipped policy ("mix-20-5-8") or a `pe-mjx
+    train` run directory."""
     evaders: str = "scripted"
-    """Evader policy: "scripted", "random", or a `pe-mjx train` run directory."""
+    """Evader policy: "scripted", "random", a shipped policy ("mix-20-5-8") or a `pe-mjx
+    train` run directory."""
     arenas: int | None = None
     """Arenas shown side by side in a grid (default 1; for a replay the file's first arenas,
     at most 16)."""
-    backend: str = "mjx"
+    backend: BackendName = "mjx"
     """Env backend: "mjx" or "kinematic" (exact arcs, compiles and runs faster)."""
     seed: int = 0
+    """Seed of the arenas' draws and the policies' sampling."""
     speed: float = 10.0
     """Env steps per second (0: as fast as possible)."""
     replay: Path | None = None
@@ -382,19 +421,24 @@ def run_view(args: ViewArgs) -> None:
 @dataclasses.dataclass(frozen=True)
 class EvaluateArgs:
     """Cross-confrontation (paper IV-B to IV-E): every pursuer policy against every evader policy.
-    A policy is "scripted", "random" or a `pe-mjx train` run directory. Writes results.md (the
+    A policy is "scripted", "random", a shipped policy ("mix-20-5-8") or a `pe-mjx train` run
+    directory. Writes results.md (the
     paper's table layout), results.csv, trials.csv, results.json, heatmaps and trajectories."""
 
     pursuers: tuple[str, ...] = ("scripted",)
     """Pursuit policies."""
     evaders: tuple[str, ...] = ("scripted",)
     """Evasion policies."""
-    preset: str = "20-5-8"
+    preset: PresetName = "20-5-8"
     """Scene to evaluate in (policies trained elsewhere are run unchanged: generalization)."""
     trials: int = 100
     """Episodes per pairing (one vmapped batch)."""
     seed: int = 0
-    backend: str = "mjx"
+    """Seed of the trials: trial i of every pairing starts from the same arena."""
+    backend: BackendName = "mjx"
+    """Env backend: mjx (MuJoCo MJX physics) or kinematic (exact arcs, faster to compile)."""
+    progress: bool = True
+    """Show a progress bar over each pairing's trials (on a terminal, on stderr)."""
     record: int = 3
     """Trials per pairing saved as trajectories for `pe-mjx view --replay`."""
     out: Path = Path("results/latest")
@@ -448,9 +492,11 @@ def run_evaluate(args: EvaluateArgs) -> None:
         args.seed,
         args.backend,
         min(args.record, args.trials),
+        log=lambda line: print(line, file=sys.stderr, flush=True),  # stdout: the table only
+        progress=args.progress,
     )
     print(report["paths"]["markdown"].read_text())
-    print(f"wrote {args.out} in {report['meta']['seconds']:.1f} s")
+    print(f"wrote {args.out} in {report['meta']['seconds']:.1f} s", file=sys.stderr)
 
 
 def run_scene(args: SceneArgs) -> None:
@@ -542,6 +588,62 @@ def run_export(args: ExportArgs) -> None:
     print(f"wrote {args.output} ({size:,} bytes): the {args.team} policy of {args.run} ({counts})")
 
 
+@dataclasses.dataclass(frozen=True)
+class PlotArgs:
+    """Plot a run's learning curves (success against the scripted teams, per-team returns), or a
+    replay written by `pe-mjx evaluate` as a top-down trajectory plot (the paper's Fig. 4) or,
+    with -o x.gif / x.mp4, as an animation."""
+
+    path: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="RUN|REPLAY.npz")]
+    """A `pe-mjx train` run directory, or a trajectory .npz (results/*/trajectories/)."""
+    output: Annotated[Path | None, tyro.conf.arg(aliases=("-o",))] = None
+    """File to write: .png (default <run>/learning_curve.png or <replay>.png); for a replay
+    also .gif or .mp4 (an animation; MP4 needs the video extra)."""
+    arena: int = 0
+    """Which recorded arena of a replay to draw."""
+    fps: int = 10
+    """Frames per second of an animation."""
+
+
+def run_plot(args: PlotArgs) -> None:
+    from pe_mjx import plots
+
+    if args.fps < 1:
+        _fail(f"--fps must be >= 1, got {args.fps}")
+    if args.output is not None and not args.output.parent.is_dir():
+        _fail(f"--output: directory {args.output.parent} does not exist")
+    if args.path.is_dir():
+        if args.output is not None and args.output.suffix.lower() != ".png":
+            _fail("--output: learning curves are written as a .png file")
+        path, table = plots.learning_curves(args.path, args.output)
+        print(table, end="")
+        print(f"wrote {path}")
+        return
+    if not args.path.is_file():
+        _fail(f"{args.path}: no such run directory or replay file")
+    from pe_mjx.trajectory import TrajectoryError
+    from pe_mjx.trajectory import load as load_trajectory
+
+    try:
+        traj = load_trajectory(args.path)
+    except TrajectoryError as err:
+        _fail(str(err))
+    out = args.output or args.path.with_suffix(".png")
+    if out.suffix.lower() in (".gif", ".mp4"):
+        path = plots.animate_trajectory(traj, out, args.arena, args.fps)
+    elif out.suffix.lower() == ".png":
+        path = plots.plot_trajectory(traj, out, args.arena)
+    else:
+        _fail(f"--output: a replay is plotted to .png, .gif or .mp4, got {out.name}")
+    print(f"wrote {path}")
+
+
+def run_reproduce(args: ReproduceArgs) -> None:
+    from pe_mjx.reproduce import reproduce
+
+    print(f"wrote {reproduce(args)}")
+
+
 def _one_line(box: str) -> str:
     """tyro's boxed error message as one line (its text without the frame and the help hint)."""
     parts = []
@@ -591,8 +693,18 @@ def main(argv: list[str] | None = None) -> None:
         "view": (ViewArgs, run_view),
         "evaluate": (EvaluateArgs, run_evaluate),
         "export": (ExportArgs, run_export),
+        "plot": (PlotArgs, run_plot),
+        "reproduce": (ReproduceArgs, run_reproduce),
     }
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv == ["--version"]:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            print(f"pe-mjx {version('pe-mjx')}")
+        except PackageNotFoundError:
+            print("pe-mjx (not installed: no version)")
+        return
     subcommands = {name: cls for name, (cls, _) in commands.items()}
     if argv[:1] == ["train"]:
         try:

@@ -359,11 +359,21 @@ class PursuitEvasionEnv:
 
         Args:
           state: the current state.
-          actions: {"pursuer": int32 [P], "evader": int32 [E]} action indices.
+          actions: {"pursuer": int32 [P], "evader": int32 [E]} action indices. An index out of
+            [0, num_actions) is clamped to the nearest valid one (a negative one to 0, a too
+            large one to the last) and counted in `metrics["invalid_actions"]` (a plain gather
+            would clamp large indices silently and wrap negative ones).
         """
         cfg = self.config
         w = state.world
         was_active = w.active
+        invalid = sum(
+            jnp.sum((a < 0) | (a >= len(self._actions[t][0])))
+            for t, a in ((t, jnp.asarray(actions[t])) for t in TEAMS)
+        ).astype(jnp.float32)
+        actions = {
+            t: jnp.clip(jnp.asarray(actions[t]), 0, len(self._actions[t][0]) - 1) for t in TEAMS
+        }
         v_p, w_p = (jnp.asarray(t)[actions["pursuer"]] for t in self._actions["pursuer"])
         v_e, w_e = (jnp.asarray(t)[actions["evader"]] for t in self._actions["evader"])
         speed = jnp.where(was_active, jnp.concatenate([v_p, v_e]), 0.0)
@@ -431,7 +441,7 @@ class PursuitEvasionEnv:
             obs=self._observe(world, geom),
             reward=reward,
             done=done,
-            metrics=self._metrics(world, terms, self.split(was_active)),
+            metrics=self._metrics(world, terms, self.split(was_active), invalid),
             info=info,
         )
 
@@ -663,9 +673,13 @@ class PursuitEvasionEnv:
         world: World,
         terms: dict[str, dict[str, jax.Array]],
         valid: dict[str, jax.Array] | None = None,
+        invalid_actions: jax.Array | None = None,
     ) -> dict[str, jax.Array]:
-        """Scalars: `reward/<team>/<term>` summed over the team this step, `episode/*` so far."""
-        metrics = {}
+        """Scalars: `reward/<team>/<term>` summed over the team this step, `episode/*` so far,
+        `invalid_actions`: out-of-range action indices given this step (clamped by `step`)."""
+        metrics = {"invalid_actions": jnp.zeros((), jnp.float32)}
+        if invalid_actions is not None:
+            metrics["invalid_actions"] = invalid_actions
         for team, team_terms in terms.items():
             for name, value in team_terms.items():
                 if valid is not None:

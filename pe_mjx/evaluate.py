@@ -16,15 +16,21 @@ intervals (Student t for means; percentile bootstrap, 2000 resamples, for the ra
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
 import math
+import os
+import shutil
+import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from pe_mjx.config import EnvConfig, get_preset
@@ -48,6 +54,13 @@ class PolicySpec:
     note: str = ""
     method: str = ""
     """The encoder of a learned policy ("mix", ...); the spec itself for built-in ones."""
+    apply: Callable[..., jax.Array] | None = None
+    """`apply(variables, obs, rng) -> actions`: `policy` with its learned state as an input."""
+    variables: Any = None
+    """The learned state `apply` takes ({"params", "normalizer"}; None for built-in ones)."""
+    shape_key: str = ""
+    """Equal for policies whose `apply` compiles to the same program (same network config and
+    action count, or the same built-in policy): one compile serves them all."""
 
 
 def _team_letter(team: str) -> str:
@@ -61,8 +74,18 @@ def resolve_policy(spec: str, team: str, env_config: EnvConfig) -> PolicySpec:
     """
     if spec in BUILTIN:
         policy = make_policy(spec, env_config, team)
-        return PolicySpec(team, spec, f"{_team_letter(team)}_{spec}", policy, method=spec)
-    from pe_mjx.ppo.checkpoint import load_policy, read_meta
+        label = f"{_team_letter(team)}_{spec}"
+        return PolicySpec(
+            team,
+            spec,
+            label,
+            policy,
+            method=spec,
+            apply=lambda variables, obs, rng: policy(obs, rng),
+            shape_key=f"builtin:{spec}",
+        )
+    from pe_mjx.agents import learned_policy, policy_apply
+    from pe_mjx.ppo.checkpoint import CheckpointError, read_meta, restore_policy_params
 
     meta = read_meta(spec)
     if team not in meta["network_configs"]:
@@ -78,8 +101,24 @@ def resolve_policy(spec: str, team: str, env_config: EnvConfig) -> PolicySpec:
         # SPEC 3.1: an MLP cannot generalise; its input is padded/truncated to its training counts.
         note = "mlp-padded"
         label += "*"
-    policy = load_policy(spec, team=team, env_config=env_config)
-    return PolicySpec(team, str(spec), label, policy, note, method=net["encoder"])
+    network, variables, _, meta = restore_policy_params(spec, team)
+    have, want = int(meta["num_actions"][team]), env_config.team(team).num_actions
+    if have != want:
+        raise CheckpointError(
+            f"the {team} policy in {spec} has {have} actions but this scene's {team}s have {want}"
+        )
+    policy = learned_policy(network, variables["params"], variables["normalizer"])
+    return PolicySpec(
+        team,
+        str(spec),
+        label,
+        policy,
+        note,
+        method=net["encoder"],
+        apply=policy_apply(network),
+        variables=variables,
+        shape_key=f"net:{have}:{json.dumps(net, sort_keys=True)}",
+    )
 
 
 def trial_metrics(env: PursuitEvasionEnv, final) -> dict[str, np.ndarray]:
@@ -164,26 +203,32 @@ def cross_confrontation(
     out: Path | None = None,
     log: Any = print,
     skip_same_method: bool = False,
+    progress: bool = False,
 ) -> list[PairingResult]:
     """Runs every pursuer spec against every evader spec; optionally records `record` trials.
 
     Trajectories are written to `out/trajectories/pairing-<i>.npz` when `record` > 0. With
     `skip_same_method`, pairings of two policies with the same encoder are left out, as in the
-    paper's tables (a co-evolution's own opponent is never its test opponent).
+    paper's tables (a co-evolution's own opponent is never its test opponent). With
+    `progress`, a progress bar over each pairing's trials on a terminal's stderr.
     """
     env = PursuitEvasionEnv(env_config, backend=backend)
     p_specs = [resolve_policy(s, "pursuer", env_config) for s in pursuers]
     e_specs = [resolve_policy(s, "evader", env_config) for s in evaders]
     keys = jax.random.split(jax.random.key(seed), trials)
+    pairs = [
+        (p, e)
+        for e in e_specs
+        for p in p_specs
+        if not (skip_same_method and p.method and p.method == e.method)
+    ]
+    games = _Games(env)
     results = []
-    index = 0
-    for e_spec in e_specs:
-        for p_spec in p_specs:
-            if skip_same_method and p_spec.method and p_spec.method == e_spec.method:
-                continue
-            pols = {"pursuer": p_spec.policy, "evader": e_spec.policy}
+    with _progress(progress) as bar:
+        for index, (p_spec, e_spec) in enumerate(pairs):
             tic = time.perf_counter()
-            final = jax.jit(lambda k, pols=pols: play_episodes(env, pols, k))(keys)
+            title = f"[{index + 1}/{len(pairs)}] {e_spec.label} vs {p_spec.label}"
+            final = games.play(p_spec, e_spec, keys, bar, title)
             per_trial = trial_metrics(env, final)
             seconds = time.perf_counter() - tic
             result = PairingResult(index, p_spec, e_spec, per_trial, summarize(per_trial), seconds)
@@ -194,15 +239,104 @@ def cross_confrontation(
                 f"{result.summary['pursuit_cost']:.2f} ({seconds:.1f} s)"
             )
             if record and out is not None:
-                _record(env, pols, keys[:record], result, out, seed)
-            index += 1
+                _record(games, p_spec, e_spec, keys[:record], result, out, seed)
     return results
 
 
-def _record(env, pols, keys, result: PairingResult, out: Path, seed: int) -> None:
+class _Games:
+    """Jitted episode batches, one compile per (pursuer shape, evader shape, batch, record): the
+    policies' learned state is an argument, so pairings of same-shaped policies share a program
+    (compiling took about 15 s of each pairing when every pairing closed over its parameters)."""
+
+    def __init__(self, env: PursuitEvasionEnv):
+        self.env = env
+        self.compiled: dict[tuple, Callable[..., Any]] = {}
+        self.shapes_run: set[tuple] = set()
+
+    def _fn(self, p_spec: PolicySpec, e_spec: PolicySpec, record: bool) -> Callable[..., Any]:
+        key = (p_spec.shape_key, e_spec.shape_key, record)
+        if key not in self.compiled:
+            p_apply, e_apply, env = p_spec.apply, e_spec.apply, self.env
+
+            def run(p_vars, e_vars, keys):
+                pols = {
+                    "pursuer": lambda obs, rng: p_apply(p_vars, obs, rng),
+                    "evader": lambda obs, rng: e_apply(e_vars, obs, rng),
+                }
+                return play_episodes(env, pols, keys, record=record)
+
+            self.compiled[key] = jax.jit(run)
+        return self.compiled[key]
+
+    def play(self, p_spec, e_spec, keys, bar=None, title: str = ""):
+        """The batched final state of one episode per key, in chunks so that the progress bar
+        moves over the trials (chunks of equal size, the last padded: one compile). Only on
+        CPU, where a wider batch gains little; an accelerator plays all trials in one batch."""
+        fn = self._fn(p_spec, e_spec, False)
+        n = len(keys)
+        steps = PROGRESS_STEPS if jax.default_backend() == "cpu" else 1
+        chunk = -(-n // min(n, steps))
+        task = None
+        if bar is not None:
+            task = bar.add_task(title, total=n)
+        finals = []
+        for start in range(0, n, chunk):
+            part = keys[start : start + chunk]
+            if len(part) < chunk:
+                part = jnp.concatenate([part, keys[: chunk - len(part)]])
+            shape = (p_spec.shape_key, e_spec.shape_key, chunk)
+            if bar is not None and shape not in self.shapes_run:
+                bar.update(task, description=f"{title}: compiling...")
+            self.shapes_run.add(shape)
+            final = fn(p_spec.variables, e_spec.variables, part)
+            finals.append(final)
+            if bar is not None:
+                bar.update(task, advance=min(chunk, n - start), description=title)
+        if bar is not None:
+            bar.remove_task(task)
+        return jax.tree.map(lambda *x: jnp.concatenate(x)[:n], *finals)
+
+    def record(self, p_spec, e_spec, keys):
+        fn = self._fn(p_spec, e_spec, True)
+        return fn(p_spec.variables, e_spec.variables, keys)
+
+
+PROGRESS_STEPS = 10
+"""On CPU the trials of a pairing run in at most this many equal chunks (one progress step
+each); arena i depends on its key alone, so the results are those of one batch."""
+
+
+@contextlib.contextmanager
+def _progress(enabled: bool):
+    """A rich progress bar on stderr (stdout keeps only the results), or None."""
+    if not enabled:
+        yield None
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        yield None
+        return
+    columns = [
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("trials"),
+        TimeElapsedColumn(),
+    ]
+    with Progress(*columns, console=console, transient=True) as bar:
+        yield bar
+
+
+def _record(
+    games: _Games, p_spec, e_spec, keys, result: PairingResult, out: Path, seed: int
+) -> None:
     from pe_mjx import trajectory
 
-    final, traj = jax.jit(lambda k: play_episodes(env, pols, k, record=True))(keys)
+    env = games.env
+    final, traj = games.record(p_spec, e_spec, keys)
     # Cut the frames after the longest of the recorded episodes ended.
     length = int(np.max(np.asarray(final.world.step))) + 1
     traj = jax.tree.map(lambda x: np.asarray(x)[:length], traj)
@@ -312,12 +446,16 @@ def write_reports(
         ],
     }
     paths["json"].write_text(json.dumps(payload, indent=1))
-    paths.update(plot_heatmaps(results, out))
+    paths.update(plot_heatmaps(results, out, env_config.name, meta.get("trials")))
     return paths
 
 
-def plot_heatmaps(results: list[PairingResult], out: Path) -> dict[str, Path]:
-    """Success rate and per-evader cost as heatmaps over pursuer x evader policies."""
+def plot_heatmaps(
+    results: list[PairingResult], out: Path, preset: str = "", trials: int | None = None
+) -> dict[str, Path]:
+    """Success rate and per-evader cost as heatmaps over pursuer x evader policies, titled with
+    the preset and the trials per pairing; each cell's number is black or white by the
+    luminance of its colour, so it reads on every cell."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -341,17 +479,24 @@ def plot_heatmaps(results: list[PairingResult], out: Path) -> dict[str, Path]:
         ax.set_xlabel("pursuer policy")
         ax.set_ylabel("evader policy")
         for (i, j), v in np.ndenumerate(grid):
+            if np.isnan(v):
+                continue
+            # An inf cell is left blank (NaN in the image): white under its text.
+            r, g, b, _ = im.cmap(im.norm(v)) if np.isfinite(v) else (1.0, 1.0, 1.0, 1.0)
+            luminance = 0.2126 * r + 0.7152 * g + 0.0722 * b
             ax.text(
                 j,
                 i,
                 "inf" if np.isinf(v) else f"{v:.2f}",
                 ha="center",
                 va="center",
-                color="white" if key == "success_rate" else "black",
+                color="black" if luminance > 0.5 else "white",
                 fontsize=9,
             )
         fig.colorbar(im, ax=ax, label=name)
-        ax.set_title(name)
+        details = [f"preset {preset}" if preset else "", f"{trials} trials" if trials else ""]
+        details = [d for d in details if d]
+        ax.set_title(f"{name} ({', '.join(details)})" if details else name)
         fig.tight_layout()
         path = out / f"{key}_heatmap.png"
         fig.savefig(path, dpi=120)
@@ -371,13 +516,79 @@ def evaluate(
     record: int = 3,
     log: Any = print,
     skip_same_method: bool = False,
+    progress: bool = False,
 ) -> dict[str, Any]:
-    """Runs a matrix and writes every report to `out`; returns the paths and the results."""
+    """Runs a matrix and writes every report to `out`; returns the paths and the results.
+
+    Everything is written into a temporary directory inside `out` first and moved into place
+    when complete, so a failed or interrupted evaluation leaves no partial results."""
     env_config = get_preset(preset) if isinstance(preset, str) else preset
     out = Path(out)
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(dir=out, prefix=".partial-"))
+    try:
+        report = _evaluate_into(
+            pursuers,
+            evaders,
+            env_config,
+            stage,
+            trials,
+            seed,
+            backend,
+            record,
+            log,
+            skip_same_method,
+            progress,
+        )
+        _move_into(stage, out)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    stage.rmdir()
+    report["paths"] = {k: out / p.relative_to(stage) for k, p in report["paths"].items()}
+    return report
+
+
+def _move_into(src: Path, dst: Path) -> None:
+    """Moves every file under `src` to the same place under `dst` (each by an atomic rename)."""
+    for entry in sorted(src.iterdir()):
+        if entry.is_dir():
+            (dst / entry.name).mkdir(exist_ok=True)
+            _move_into(entry, dst / entry.name)
+            entry.rmdir()
+        else:
+            os.replace(entry, dst / entry.name)
+
+
+def _evaluate_into(
+    pursuers: list[str],
+    evaders: list[str],
+    env_config: EnvConfig,
+    out: Path,
+    trials: int,
+    seed: int,
+    backend: str,
+    record: int,
+    log: Any,
+    skip_same_method: bool,
+    progress: bool = False,
+) -> dict[str, Any]:
     tic = time.perf_counter()
     results = cross_confrontation(
-        pursuers, evaders, env_config, trials, seed, backend, record, out, log, skip_same_method
+        pursuers,
+        evaders,
+        env_config,
+        trials,
+        seed,
+        backend,
+        record,
+        out,
+        log,
+        skip_same_method,
+        progress,
     )
     meta = {
         "preset": env_config.name,

@@ -743,3 +743,19 @@ def test_auto_reset_step_batch_matches_vmapped_step(get_compiled):
                     e, g = jax.random.key_data(e), jax.random.key_data(g)
                 np.testing.assert_array_equal(np.asarray(e), np.asarray(g))
             state = got
+
+
+def test_out_of_range_actions_are_clamped_and_counted():
+    """An index below 0 plays action 0, one at or above num_actions the last action (never a
+    wrap-around), and `metrics["invalid_actions"]` counts them."""
+    env = pe_env.make("2-1-1", backend="kinematic")
+    state = env.reset(jax.random.key(0))
+    assert float(state.metrics["invalid_actions"]) == 0.0
+    last = {t: env.config.team(t).num_actions - 1 for t in ("pursuer", "evader")}
+    bad = {"pursuer": jnp.array([-1, 999]), "evader": jnp.array([-1000])}
+    good = {"pursuer": jnp.array([0, last["pursuer"]]), "evader": jnp.array([0])}
+    clamped, reference = env.step(state, bad), env.step(state, good)
+    np.testing.assert_array_equal(clamped.world.pos, reference.world.pos)
+    np.testing.assert_array_equal(clamped.world.yaw, reference.world.yaw)
+    assert float(clamped.metrics["invalid_actions"]) == 3.0
+    assert float(reference.metrics["invalid_actions"]) == 0.0

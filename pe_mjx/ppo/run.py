@@ -115,6 +115,7 @@ def train(
     progress: bool = True,
     stop_after: int | None = None,
     on_iteration: Callable[[Trainer, TrainState, dict[str, float]], None] | None = None,
+    wandb_project: str | None = None,
 ) -> tuple[Trainer, TrainState]:
     """Trains (or resumes) a co-evolution, writing checkpoints and logs to `out`.
 
@@ -126,6 +127,8 @@ def train(
       stop_after: stop (with a checkpoint) after this many iterations of this call; for tests
         and for chunked runs on machines with a time limit.
       on_iteration: called after every iteration with the host-side metrics (live viewer).
+      wandb_project: also log every scalar to this Weights & Biases project (the `wandb`
+        extra; `WANDB_MODE=offline` logs without an account).
 
     The run directory is locked (`checkpoint.lock_run`) while this runs. A NaN or inf in a loss
     or in the parameters stops the run with `TrainingError` before anything non-finite is saved:
@@ -149,7 +152,7 @@ def train(
                 f"cannot create the run directory {run_dir}: {err.strerror or err}"
             ) from None
     with checkpoint.lock_run(run_dir):
-        return _train(config, run_dir, resume, progress, stop_after, on_iteration)
+        return _train(config, run_dir, resume, progress, stop_after, on_iteration, wandb_project)
 
 
 class TrainingError(RuntimeError):
@@ -169,6 +172,7 @@ def _train(
     progress: bool,
     stop_after: int | None,
     on_iteration: Callable[[Trainer, TrainState, dict[str, float]], None] | None,
+    wandb_project: str | None = None,
 ) -> tuple[Trainer, TrainState]:
     from tensorboardX import SummaryWriter
 
@@ -181,6 +185,7 @@ def _train(
     iteration_fn = jax.jit(trainer.iteration, donate_argnums=0)
     evaluate_fn = jax.jit(trainer.evaluate)
     writer = SummaryWriter(str(run_dir / "tb"))
+    wandb_run = _start_wandb(wandb_project, run_dir, config) if wandb_project else None
     start = int(state.iteration)
     total = config.num_iterations
     end = total if stop_after is None else min(total, start + stop_after)
@@ -230,6 +235,8 @@ def _train(
             n_agents = trainer.env_config.num_agents
             host["perf/agent_steps_per_s"] = speed * n_agents
             done_iters = it + 1
+            for team, lr in learning_rates(trainer, done_iters).items():
+                host[f"ppo/{team}/learning_rate"] = lr
             if config.eval_every and (done_iters % config.eval_every == 0 or done_iters == total):
                 eval_key = jax.random.fold_in(jax.random.key(config.seed + 1), done_iters)
                 latest_eval = {
@@ -241,6 +248,8 @@ def _train(
             for k, v in host.items():
                 if np.isfinite(v):
                     writer.add_scalar(k, v, env_steps)
+            if wandb_run is not None:
+                wandb_run.log({k: v for k, v in host.items() if np.isfinite(v)}, step=env_steps)
             success = latest_eval.get("eval/pursuer_vs_scripted/success_rate")
             bar.update(
                 task,
@@ -253,7 +262,33 @@ def _train(
             if done_iters % config.checkpoint_every == 0 or done_iters == end:
                 last_saved = checkpoint.save(run_dir, trainer, state)
     writer.close()
+    if wandb_run is not None:
+        wandb_run.finish()
     return trainer, state
+
+
+def learning_rates(trainer: Trainer, iterations: int) -> dict[str, float]:
+    """Each learned team's learning rate after `iterations` iterations (its schedule there)."""
+    ppo = trainer.config.ppo
+    updates = iterations * ppo.update_epochs * ppo.num_minibatches
+    return {t: float(trainer.schedule(t)(updates)) for t in trainer.learned}
+
+
+def _start_wandb(project: str, run_dir: Path, config: ExperimentConfig) -> Any:
+    """A Weights & Biases run logging beside TensorBoard (ValueError without the extra)."""
+    try:
+        import wandb
+    except ImportError:
+        raise ValueError(
+            "--wandb-project needs Weights & Biases: pip install 'pe-mjx[wandb]'"
+        ) from None
+    return wandb.init(
+        project=project,
+        name=run_dir.name,
+        dir=str(run_dir),
+        config=config.to_dict(),
+        resume="allow",
+    )
 
 
 def summarize(state: TrainState) -> dict[str, Any]:

@@ -251,9 +251,7 @@ class Trainer:
             value_coef=cfg.value_coef,
             entropy_coef=cfg.entropy_coef,
         )
-        update = gradients.gradient_update_fn(
-            loss_fn, self.optimizers[team], None, has_aux=True
-        )
+        update = gradients.gradient_update_fn(loss_fn, self.optimizers[team], None, has_aux=True)
         n = batch.actions.shape[0]
         mb = n // cfg.num_minibatches
 
