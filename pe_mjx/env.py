@@ -31,18 +31,26 @@ import numpy as np
 from flax import struct
 
 from pe_mjx import scene
-from pe_mjx.config import TEAMS, EnvConfig, TeamConfig, get_preset
+from pe_mjx.config import EnvConfig, TeamConfig, get_preset
 
-BACKENDS = ("mjx", "kinematic")
+# The game's names and sizes live in pe_mjx.names; env.<NAME> stays importable for older code.
+from pe_mjx.names import (  # noqa: F401
+    ACTIVE,
+    AGENT_FEATURES,
+    BACKENDS,
+    CAPTURE,
+    CAUSE_NAMES,
+    EVADER_TERMS,
+    OBSTACLE,
+    OBSTACLE_FEATURES,
+    OPPONENT,
+    OWN_FEATURES,
+    PURSUER_TERMS,
+    TEAMMATE,
+    TEAMS,
+    WALL,
+)
 
-# Incapacitation causes (World.cause). 0 means still active.
-ACTIVE, WALL, OBSTACLE, CAPTURE, TEAMMATE, OPPONENT = range(6)
-CAUSE_NAMES = {WALL: "wall", OBSTACLE: "obstacle", CAPTURE: "capture", TEAMMATE: "teammate"}
-CAUSE_NAMES[OPPONENT] = "opponent"
-
-OWN_FEATURES = 5
-AGENT_FEATURES = 6
-OBSTACLE_FEATURES = 4
 # The action mask keeps this much (metres) from the wall and obstacles, so that float32 rounding
 # (the mask works in the heading frame on squared distances, the events in the world frame) never
 # lets an unmasked action end a step touching; without it, about 1 in 10^5 random near-wall
@@ -52,9 +60,6 @@ MASK_MARGIN = 1e-4
 # actions: both end every control step on the same arc, up to float32 rounding (measured in
 # tests/test_rules.py: 1.7e-5 m and 7e-6 rad after 420 steps).
 MJX_POSE_TOL = 1e-4
-
-
-EVADER_TERMS = ("wall", "obstacle", "teammate", "opponent", "alive", "flee")
 
 
 @struct.dataclass

@@ -1,0 +1,91 @@
+"""The game's names and sizes, in one place: teams, backends, encoders, features, causes, terms.
+
+Pure Python (no jax, no numpy), at the bottom of the layer table (`tests/test_layout.py`): every
+other module takes these from here instead of restating them.
+"""
+
+from __future__ import annotations
+
+TEAMS = ("pursuer", "evader")
+"""Team names, pursuers first (the order of agents in `World` and of every per-team loop)."""
+
+BACKENDS = ("mjx", "kinematic")
+"""Physics backends of `PursuitEvasionEnv`."""
+
+ENCODERS = ("mix", "mean", "birnn", "mlp")
+"""Network encoders: the paper's Mix-Attention and its three baselines."""
+
+BUILTIN_POLICIES = ("scripted", "random")
+"""Policy specs that need no checkpoint (`pe_mjx.policies.POLICIES`)."""
+
+# Observation layout (SPEC 2.5): one feature vector per entity, per observing agent.
+OWN_FEATURES = 5
+AGENT_FEATURES = 6
+OBSTACLE_FEATURES = 4
+ENTITY_KEYS = ("own", "teammates", "opponents", "obstacles")
+"""The entity blocks of a team's observation dict, in their flattening order."""
+ENTITY_TYPES = ENTITY_KEYS[1:]
+FEATURES = {
+    "own": OWN_FEATURES,
+    "teammates": AGENT_FEATURES,
+    "opponents": AGENT_FEATURES,
+    "obstacles": OBSTACLE_FEATURES,
+}
+"""Features per entity of each block."""
+MASK_KEYS = {
+    "teammates": "teammate_mask",
+    "opponents": "opponent_mask",
+    "obstacles": "obstacle_mask",
+}
+"""The validity mask of each entity block."""
+
+# Incapacitation causes (`World.cause`); 0 means still active.
+ACTIVE, WALL, OBSTACLE, CAPTURE, TEAMMATE, OPPONENT = range(6)
+NUM_CAUSES = 6
+CAUSE_NAMES = {
+    WALL: "wall",
+    OBSTACLE: "obstacle",
+    CAPTURE: "capture",
+    TEAMMATE: "teammate",
+    OPPONENT: "opponent",
+}
+"""Cause code -> name, for the codes of incapacitated agents."""
+
+# Reward terms (eqs. (3) and (4)), each logged as `reward/<team>/<term>`.
+PURSUER_TERMS = ("wall", "obstacle", "teammate", "pursuit", "capture", "opponent")
+EVADER_TERMS = ("wall", "obstacle", "teammate", "opponent", "alive", "flee")
+REWARD_TERMS = {"pursuer": PURSUER_TERMS, "evader": EVADER_TERMS}
+
+
+def other_team(team: str) -> str:
+    """The opposing team's name."""
+    if team not in TEAMS:
+        raise ValueError(f"unknown team {team!r}; expected one of {TEAMS}")
+    return TEAMS[1 - TEAMS.index(team)]
+
+
+__all__ = [
+    "ACTIVE",
+    "AGENT_FEATURES",
+    "BACKENDS",
+    "BUILTIN_POLICIES",
+    "CAPTURE",
+    "CAUSE_NAMES",
+    "ENCODERS",
+    "ENTITY_KEYS",
+    "ENTITY_TYPES",
+    "EVADER_TERMS",
+    "FEATURES",
+    "MASK_KEYS",
+    "NUM_CAUSES",
+    "OBSTACLE",
+    "OBSTACLE_FEATURES",
+    "OPPONENT",
+    "OWN_FEATURES",
+    "PURSUER_TERMS",
+    "REWARD_TERMS",
+    "TEAMMATE",
+    "TEAMS",
+    "WALL",
+    "other_team",
+]
