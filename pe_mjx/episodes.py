@@ -16,7 +16,8 @@ def play_episodes(
     policies: dict[str, Policy],
     keys: jax.Array,
     record: bool = False,
-) -> State | tuple[State, dict[str, jax.Array]]:
+    returns: bool = False,
+) -> State | tuple:
     """Plays one episode per key (one vmapped batch of B arenas) until every one is done.
 
     Arena i's episode (its reset and every action sampled) depends on `keys[i]` alone, exactly as
@@ -29,37 +30,73 @@ def play_episodes(
       keys: [B] PRNG keys, one per arena.
       record: also return the trajectory: poses [max_steps + 1, B, N, 3] and active
         [max_steps + 1, B, N] (after an arena ended, its frames repeat its final state).
+      returns: also return each agent's episodic return: team -> float32 [B, A], the sum of its
+        (unscaled) rewards over its arena's episode (0 after it is down or the arena ended).
 
     Returns:
-      The batched final state [B], and with `record` the trajectory dict.
+      The batched final state [B]; with `record` and/or `returns` a tuple `(final, trajectory)`,
+      `(final, returns)` or `(final, trajectory, returns)`.
     """
     max_steps = env.config.max_steps
-    if not record:
+    if not record and not returns:
         return jax.vmap(lambda k: rollout(env, policies, k, max_steps))(keys)
 
-    def one_arena(rng):
-        rng, reset_rng = jax.random.split(rng)
-        state = env.reset(reset_rng)
+    def step(s: State, key: jax.Array) -> tuple[State, jax.Array]:
+        # The same key splits as `match.rollout`, so that every path plays the same episode.
+        key, *team_keys = jax.random.split(key, len(TEAMS) + 1)
+        actions = {t: policies[t](s.obs[t], k) for t, k in zip(TEAMS, team_keys, strict=True)}
+        return env.step(s, actions), key
 
-        def body(carry, _):
-            s, key = carry
-            key, *team_keys = jax.random.split(key, len(TEAMS) + 1)
-            actions = {t: policies[t](s.obs[t], k) for t, k in zip(TEAMS, team_keys, strict=True)}
-            nxt = env.step(s, actions)
-            finished = s.done > 0
-            s = jax.tree.map(lambda old, new: jnp.where(finished, old, new), s, nxt)
-            return (s, key), pose_of(s)
+    def zero_returns(s: State) -> dict[str, jax.Array]:
+        return {t: jnp.zeros_like(s.reward[t]) for t in TEAMS}
 
-        (final, _), frames = jax.lax.scan(body, (state, rng), None, length=max_steps)
-        first = pose_of(state)
-        traj = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, frames)
-        return final, traj
+    def add(ret: dict[str, jax.Array], s: State, gained: jax.Array) -> dict[str, jax.Array]:
+        # The env's reward is already 0 for agents that were down before the step.
+        return {t: ret[t] + jnp.where(gained, s.reward[t], 0.0) for t in TEAMS}
 
     def pose_of(s: State) -> dict[str, jax.Array]:
         w = s.world
         return {"poses": jnp.concatenate([w.pos, w.yaw[..., None]], axis=-1), "active": w.active}
 
-    final, traj = jax.vmap(one_arena)(keys)
+    def one_arena_returns(rng):
+        # As `match.rollout`, the while loop stops at `done` (under vmap, finished arenas freeze).
+        rng, reset_rng = jax.random.split(rng)
+        state = env.reset(reset_rng)
+
+        def body(carry):
+            s, key, ret = carry
+            nxt, key = step(s, key)
+            return nxt, key, add(ret, nxt, True)
+
+        def cond(carry):
+            s, _, _ = carry
+            return (s.world.step < max_steps) & (s.done == 0)
+
+        final, _, ret = jax.lax.while_loop(cond, body, (state, rng, zero_returns(state)))
+        return final, ret
+
+    def one_arena_recorded(rng):
+        rng, reset_rng = jax.random.split(rng)
+        state = env.reset(reset_rng)
+
+        def body(carry, _):
+            s, key, ret = carry
+            nxt, key = step(s, key)
+            finished = s.done > 0
+            s = jax.tree.map(lambda old, new: jnp.where(finished, old, new), s, nxt)
+            ret = add(ret, s, ~finished)
+            return (s, key, ret), pose_of(s)
+
+        (final, _, ret), frames = jax.lax.scan(
+            body, (state, rng, zero_returns(state)), None, length=max_steps
+        )
+        first = pose_of(state)
+        traj = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, frames)
+        return final, traj, ret
+
+    if not record:
+        return jax.vmap(one_arena_returns)(keys)
+    final, traj, ret = jax.vmap(one_arena_recorded)(keys)
     # vmap puts the arena axis first; the trajectory format is time-major [T, B, ...].
     traj = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), traj)
-    return final, traj
+    return (final, traj, ret) if returns else (final, traj)

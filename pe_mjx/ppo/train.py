@@ -213,6 +213,7 @@ class Trainer:
                     "truncation": (next_state.info["truncation"][:, None] * valid),
                 }
             data["metrics"] = next_state.metrics
+            data["team_reward"] = {t: jnp.sum(next_state.reward[t], axis=-1) for t in TEAMS}
             data["done"] = next_state.done
             return next_state, data
 
@@ -303,6 +304,9 @@ class Trainer:
                 # NaN when no arena finished this iteration: the logger skips it.
                 metrics[k] = jnp.where(jnp.sum(done) > 0, jnp.sum(v * done) / finished, jnp.nan)
         metrics["episode/finished"] = jnp.sum(done)
+        for team, reward in data["team_reward"].items():
+            # The team's reward (summed over its agents, unscaled) per step and arena.
+            metrics[f"reward/{team}/total"] = jnp.mean(reward)
         steps = self.config.steps_per_iteration
         new_ts = TrainState(
             teams=teams,
@@ -324,7 +328,11 @@ class Trainer:
         return out
 
     def evaluate(self, ts: TrainState, rng: jax.Array) -> dict[str, jax.Array]:
-        """Each learned team against the scripted opponent, `eval_envs` full episodes each."""
+        """Each learned team against the scripted opponent, `eval_envs` full episodes each.
+
+        Keys `eval/<team>_vs_scripted/<metric>`: the env's `episode/*` metrics averaged over the
+        episodes, and `<team>_return`, the team's episodic return (unscaled rewards summed over
+        the episode, averaged over its agents and the episodes)."""
         metrics = {}
         current = self.policies(ts)
         for team in self.learned:
@@ -332,8 +340,9 @@ class Trainer:
             pair = {team: current[team], other: self.scripted[other]}
             rng, key = jax.random.split(rng)
             keys = jax.random.split(key, self.config.eval_envs)
-            final = play_episodes(self.eval_env, pair, keys)
+            final, returns = play_episodes(self.eval_env, pair, keys, returns=True)
             for k, v in final.metrics.items():
                 if k.startswith("episode/"):
                     metrics[f"eval/{team}_vs_scripted/{k[len('episode/') :]}"] = jnp.mean(v)
+            metrics[f"eval/{team}_vs_scripted/{team}_return"] = jnp.mean(returns[team])
         return metrics

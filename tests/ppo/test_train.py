@@ -91,13 +91,24 @@ def test_pursuers_learn_to_capture_the_scripted_evader():
     state = trainer.init()
     evaluate = jax.jit(trainer.evaluate)
     key = jax.random.key(123)
-    before = float(evaluate(state, key)["eval/pursuer_vs_scripted/success_rate"])
+    untrained = evaluate(state, key)
     step = jax.jit(trainer.iteration, donate_argnums=0)
     for _ in range(config.num_iterations):
-        state, _ = step(state)
-    after = float(evaluate(state, key)["eval/pursuer_vs_scripted/success_rate"])
+        state, metrics = step(state)
+    trained = evaluate(state, key)
+    before, after = (
+        float(m["eval/pursuer_vs_scripted/success_rate"]) for m in (untrained, trained)
+    )
     print(f"success vs scripted evader: untrained {before:.3f}, trained {after:.3f}")
     assert after >= before + 0.2
+    # Capturing pays: the pursuers' episodic return (mean per agent) rises with success.
+    ret_before, ret_after = (
+        float(m["eval/pursuer_vs_scripted/pursuer_return"]) for m in (untrained, trained)
+    )
+    print(f"pursuer return vs scripted evader: untrained {ret_before:.1f}, trained {ret_after:.1f}")
+    assert ret_after > ret_before
+    assert np.isfinite(float(metrics["reward/pursuer/total"]))
+    assert "reward/evader/total" in metrics
 
 
 def test_two_devices_match_one_device(tmp_path):
