@@ -170,7 +170,9 @@ class ArenaConfig:
     num_obstacles: int = 8
     """K, number of obstacles drawn at every reset."""
     obstacle_radius_min: float = 0.3
+    """Smallest obstacle radius in metres (each reset draws radii uniformly in [min, max])."""
     obstacle_radius_max: float = 0.5
+    """Largest obstacle radius in metres."""
     spawn_clearance: float = 0.15
     """Minimum gap between any two things (and to the wall) at spawn, in metres."""
     spawn_candidates: int = 64
@@ -238,6 +240,8 @@ class EnvConfig:
     """Everything that defines one game; every constant of the rules lives here."""
 
     name: str = "custom"
+    """The game's label: its preset's name (P-E-K) or "custom"; used in run names, titles and
+    the MJCF model name, never by the rules."""
     arena: ArenaConfig = dataclasses.field(default_factory=ArenaConfig)
     pursuer: TeamConfig = dataclasses.field(
         default_factory=lambda: TeamConfig(
