@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -136,6 +137,8 @@ def train(
     `checkpoint.CheckpointWriteError`.
     """
     run_dir = Path(out)
+    if wandb_project is not None:
+        _import_wandb()  # without the extra, fail before any work
     if not resume and checkpoint.has_complete_checkpoint(run_dir):
         raise ValueError(
             f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or "
@@ -200,6 +203,7 @@ def _train(
         TimeRemainingColumn(),
     ]
     steps_done = int(state.env_steps)
+    evaluated = False  # the first evaluation compiles `evaluate_fn`
     with Progress(*columns, disable=not progress) as bar:
         task = bar.add_task(
             config.preset,
@@ -210,6 +214,8 @@ def _train(
         )
         # The first iteration compiles (a minute for the paper's scenes on a CPU).
         bar.update(task, description=f"{config.preset} compiling...")
+        if not progress and start < end:
+            _note(f"{config.preset}: compiling the training iteration...")
         tic = time.perf_counter()
         for it in range(start, end):
             state, metrics = iteration_fn(state)
@@ -239,10 +245,17 @@ def _train(
                 host[f"ppo/{team}/learning_rate"] = lr
             if config.eval_every and (done_iters % config.eval_every == 0 or done_iters == total):
                 eval_key = jax.random.fold_in(jax.random.key(config.seed + 1), done_iters)
+                if not evaluated:
+                    evaluated = True
+                    message = f"{config.preset}: compiling the evaluation..."
+                    bar.update(task, description=message)
+                    if not progress:
+                        _note(message)
                 latest_eval = {
                     k: float(v) for k, v in jax.device_get(evaluate_fn(state, eval_key)).items()
                 }
                 host.update(latest_eval)
+                bar.update(task, description=config.preset)
                 tic = time.perf_counter()  # evaluation time is not training throughput
             env_steps = int(state.env_steps)
             for k, v in host.items():
@@ -267,6 +280,11 @@ def _train(
     return trainer, state
 
 
+def _note(message: str) -> None:
+    """One line on stderr, for runs without the progress bar (logs, `--no-progress`)."""
+    print(message, file=sys.stderr, flush=True)
+
+
 def learning_rates(trainer: Trainer, iterations: int) -> dict[str, float]:
     """Each learned team's learning rate after `iterations` iterations (its schedule there)."""
     ppo = trainer.config.ppo
@@ -274,15 +292,20 @@ def learning_rates(trainer: Trainer, iterations: int) -> dict[str, float]:
     return {t: float(trainer.schedule(t)(updates)) for t in trainer.learned}
 
 
-def _start_wandb(project: str, run_dir: Path, config: ExperimentConfig) -> Any:
-    """A Weights & Biases run logging beside TensorBoard (ValueError without the extra)."""
+def _import_wandb() -> Any:
+    """The `wandb` module (ValueError without the extra)."""
     try:
         import wandb
     except ImportError:
         raise ValueError(
             "--wandb-project needs Weights & Biases: pip install 'pe-mjx[wandb]'"
         ) from None
-    return wandb.init(
+    return wandb
+
+
+def _start_wandb(project: str, run_dir: Path, config: ExperimentConfig) -> Any:
+    """A Weights & Biases run logging beside TensorBoard (ValueError without the extra)."""
+    return _import_wandb().init(
         project=project,
         name=run_dir.name,
         dir=str(run_dir),
