@@ -222,7 +222,7 @@ def cross_confrontation(
         for p in p_specs
         if not (skip_same_method and p.method and p.method == e.method)
     ]
-    games = _Games(env)
+    games = _Games(env, log)
     results = []
     with _progress(progress) as bar:
         for index, (p_spec, e_spec) in enumerate(pairs):
@@ -248,8 +248,10 @@ class _Games:
     policies' learned state is an argument, so pairings of same-shaped policies share a program
     (compiling took about 15 s of each pairing when every pairing closed over its parameters)."""
 
-    def __init__(self, env: PursuitEvasionEnv):
+    def __init__(self, env: PursuitEvasionEnv, log: Any = None):
         self.env = env
+        self.log = log
+        """Told "compiling..." before each new compile when no progress bar shows it."""
         self.compiled: dict[tuple, Callable[..., Any]] = {}
         self.shapes_run: set[tuple] = set()
 
@@ -285,8 +287,11 @@ class _Games:
             if len(part) < chunk:
                 part = jnp.concatenate([part, keys[: chunk - len(part)]])
             shape = (p_spec.shape_key, e_spec.shape_key, chunk)
-            if bar is not None and shape not in self.shapes_run:
-                bar.update(task, description=f"{title}: compiling...")
+            if shape not in self.shapes_run:
+                if bar is not None:
+                    bar.update(task, description=f"{title}: compiling...")
+                elif self.log is not None:
+                    self.log(f"{title}: compiling...")
             self.shapes_run.add(shape)
             final = fn(p_spec.variables, e_spec.variables, part)
             finals.append(final)
@@ -297,6 +302,10 @@ class _Games:
         return jax.tree.map(lambda *x: jnp.concatenate(x)[:n], *finals)
 
     def record(self, p_spec, e_spec, keys):
+        shape = (p_spec.shape_key, e_spec.shape_key, len(keys), "record")
+        if shape not in self.shapes_run and self.log is not None:
+            self.log(f"{e_spec.label} vs {p_spec.label}: compiling the recording...")
+        self.shapes_run.add(shape)
         fn = self._fn(p_spec, e_spec, True)
         return fn(p_spec.variables, e_spec.variables, keys)
 

@@ -147,16 +147,20 @@ def test_cli_end_to_end_and_bad_inputs(tmp_path):
         "kinematic",
         "--record",
         "1",
+        "--no-progress",
         "--out",
         str(out),
     )
     assert ok.returncode == 0, ok.stderr[-2000:]
     assert "| E_random | P_scripted |" in ok.stdout
+    # Without the progress bar each compile is still announced, on stderr.
+    assert "E_random vs P_scripted: compiling..." in ok.stderr
+    assert "compiling the recording..." in ok.stderr and "compiling" not in ok.stdout
     assert (out / "results.md").is_file() and (out / "trajectories" / "pairing-0.npz").is_file()
     again = _cli("--pursuers", "scripted", "--preset", "2-1-1", "--out", str(out))
     assert again.returncode != 0 and "already holds results" in again.stderr
     for args, message in (
-        (("--preset", "9-9-9"), "unknown preset"),
+        (("--preset", "9-9-9"), "invalid choice '9-9-9' for argument '--preset'"),
         (("--pursuers", str(tmp_path / "missing-run")), "does not exist"),
         (("--trials", "0"), "trials"),
     ):
