@@ -1,8 +1,9 @@
 """Play-time policies from networks: observation statistics + actor-critic -> `(obs, rng) -> a`.
 
 The trainer, the checkpoint loader, the evaluator and the viewer all act through these, so a
-policy plays the same wherever it runs. Observation normalisation is Brax's `running_statistics`,
-one statistic per entity type over its feature axis (independent of entity counts).
+policy plays the same wherever it runs (`pe_mjx.play` turns a policy spec into one of them).
+Observation normalisation is Brax's `running_statistics`, one statistic per entity type over its
+feature axis (independent of entity counts).
 """
 
 from __future__ import annotations
@@ -14,11 +15,35 @@ import jax
 import jax.numpy as jnp
 from brax.training.acme import running_statistics
 
-from pe_mjx.networks import MASK_KEYS, greedy_actions, sample_actions
+from pe_mjx.config import EnvConfig
+from pe_mjx.names import (
+    AGENT_FEATURES,
+    ENTITY_KEYS,
+    MASK_KEYS,
+    OBSTACLE_FEATURES,
+    OWN_FEATURES,
+    other_team,
+)
+from pe_mjx.networks import greedy_actions, sample_actions
 from pe_mjx.policies import Policy
 
-ENTITY_KEYS = ("own", "teammates", "opponents", "obstacles")
-ENTITY_MASKS = MASK_KEYS
+
+def dummy_obs(env_config: EnvConfig, team: str) -> dict[str, jax.Array]:
+    """Zero observations of one arena with the shapes the env gives `team` (for network init)."""
+    a = env_config.team(team).num_agents
+    other = env_config.team(other_team(team)).num_agents
+    k = env_config.arena.num_obstacles
+    n_act = env_config.team(team).num_actions
+    return {
+        "own": jnp.zeros((a, OWN_FEATURES)),
+        "teammates": jnp.zeros((a, a - 1, AGENT_FEATURES)),
+        "opponents": jnp.zeros((a, other, AGENT_FEATURES)),
+        "obstacles": jnp.zeros((a, k, OBSTACLE_FEATURES)),
+        "teammate_mask": jnp.ones((a, a - 1), bool),
+        "opponent_mask": jnp.ones((a, other), bool),
+        "obstacle_mask": jnp.ones((a, k), bool),
+        "action_mask": jnp.ones((a, n_act), bool),
+    }
 
 
 def init_normalizer(obs: dict[str, jax.Array]) -> dict[str, Any]:
@@ -51,8 +76,8 @@ def update_normalizer(
         if x.size == 0:
             continue
         weights = valid.astype(jnp.float32)
-        if k in ENTITY_MASKS:
-            weights = weights[..., None] * obs[ENTITY_MASKS[k]]
+        if k in MASK_KEYS:
+            weights = weights[..., None] * obs[MASK_KEYS[k]]
         new[k] = running_statistics.update(normalizer[k], x, weights=weights)
     return new
 
@@ -86,3 +111,30 @@ def learned_policy(
         return apply(variables, obs, rng)
 
     return policy
+
+
+def attention_policy_apply(
+    network: Any, encoder: str, deterministic: bool = False
+) -> Callable[..., tuple[jax.Array, jax.Array | None]]:
+    """`apply(variables, obs, rng) -> (actions, attention)`: `policy_apply` for the viewer.
+
+    MIX networks (`encoder == "mix"`) also return each agent's own-token attention over its
+    tokens, mean over heads: float [A, M]; other encoders return None. Actions are int32 [A].
+    """
+    with_attention = encoder == "mix"
+
+    def apply(variables: dict[str, Any], obs: dict[str, jax.Array], rng: jax.Array):
+        inputs = normalize_obs(obs, variables["normalizer"])
+        attention = None
+        if with_attention:
+            (logits, _), inter = network.apply(
+                variables["params"], inputs, mutable=["intermediates"]
+            )
+            weights = inter["intermediates"]["encoder"]["attention"][0]  # [A, H, M]
+            attention = jnp.mean(weights, axis=-2)
+        else:
+            logits, _ = network.apply(variables["params"], inputs)
+        actions = greedy_actions(logits) if deterministic else sample_actions(logits, rng)
+        return actions.astype(jnp.int32), attention
+
+    return apply

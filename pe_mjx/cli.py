@@ -19,6 +19,7 @@ import tyro
 
 from pe_mjx.config import PRESETS
 from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.names import BACKENDS, BUILTIN_POLICIES
 from pe_mjx.reproduce import ReproduceArgs
 
 
@@ -34,7 +35,6 @@ def _check_preset(name: str) -> None:
 
 SEED_LIMIT = 2**32
 """Seeds are in [0, 2**32) (`jax.random.key` keeps 32 bits; larger ones overflowed)."""
-BACKENDS = ("mjx", "kinematic")
 MAX_TRIALS = 100_000
 """Episodes per pairing at most (one vmapped batch: more would exhaust memory)."""
 
@@ -155,7 +155,6 @@ def train_defaults(argv: list[str]) -> TrainArgs:
 
 def _check_opponents(config: ExperimentConfig) -> None:
     """A team played frozen from a run: its checkpoint is checked before anything is written."""
-    from pe_mjx.experiment import BUILTIN_POLICIES
     from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
 
     for team in ("pursuer", "evader"):
@@ -447,14 +446,13 @@ class EvaluateArgs:
 
 def _check_policy_specs(flag: str, specs: tuple[str, ...], team: str) -> None:
     """Each spec is built in or a readable run that learned `team`: checked before any compile."""
-    from pe_mjx.evaluate import BUILTIN
     from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
     from pe_mjx.shipped import resolve_run
 
     if not specs:
         _fail(f"{flag} needs at least one policy (scripted, random, a shipped policy or a run)")
     for spec in specs:
-        if spec in BUILTIN:
+        if spec in BUILTIN_POLICIES:
             continue
         if not spec or not resolve_run(spec).is_dir():
             _fail(f"{flag}: {spec!r} is not scripted, random, a shipped policy or a run directory")

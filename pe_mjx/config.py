@@ -9,17 +9,9 @@ import types
 import typing
 from typing import Any, TypeVar
 
-TEAMS = ("pursuer", "evader")
-ENCODERS = ("mix", "mean", "birnn", "mlp")
-BACKENDS = ("mjx", "kinematic")
+from pe_mjx.names import TEAMS, other_team  # noqa: F401  (re-exported for older imports)
+
 T = TypeVar("T")
-
-
-def other_team(team: str) -> str:
-    """The opposing team's name."""
-    if team not in TEAMS:
-        raise ValueError(f"unknown team {team!r}; expected one of {TEAMS}")
-    return TEAMS[1 - TEAMS.index(team)]
 
 
 def _check(cond: bool, field: str, msg: str) -> None:

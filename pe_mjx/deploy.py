@@ -42,8 +42,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pe_mjx.config import TEAMS, EnvConfig
-from pe_mjx.env import ACTIVE, OBSTACLE, PursuitEvasionEnv, World, action_table
+from pe_mjx.config import EnvConfig
+from pe_mjx.env import PursuitEvasionEnv, World, action_table
+from pe_mjx.names import ACTIVE, OBSTACLE, TEAMS
 
 Policy = Callable[[dict[str, Any], jax.Array], Any]
 """(one team's observation dict, rng) -> int32 [A] actions, as `pe_mjx.load_policy` returns, the

@@ -1,9 +1,10 @@
 """The paper's evaluation (IV-B to IV-E): cross-confrontation matrices, its four metrics, reports.
 
-A *policy spec* is "scripted", "random" or a run directory of `pe-mjx train`. Every pursuer spec
-plays every evader spec for `trials` episodes, all trials of a pairing as one vmapped batch; trial
-i of every pairing starts from the same arena (reset key i), so pairings are compared on equal
-ground. Metrics per trial (SPEC 4), with m pursuers and n evaders, m' and n' incapacitated:
+A *policy spec* is "scripted", "random", a run directory of `pe-mjx train` or a shipped policy
+(resolved by `pe_mjx.play.resolve_policy`). Every pursuer spec plays every evader spec for
+`trials` episodes, all trials of a pairing as one vmapped batch; trial i of every pairing starts
+from the same arena (reset key i), so pairings are compared on equal ground. Metrics per trial
+(SPEC 4), with m pursuers and n evaders, m' and n' incapacitated:
 
   success rate      n' / n
   travel distance   mean distance travelled by the m pursuers (metres)
@@ -33,116 +34,33 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pe_mjx import trajectory
 from pe_mjx.config import EnvConfig, get_preset
-from pe_mjx.env import CAUSE_NAMES, PursuitEvasionEnv
+from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.episodes import play_episodes
-from pe_mjx.policies import Policy, make_policy
+from pe_mjx.names import CAUSE_NAMES
+from pe_mjx.outcomes import outcome_counts
+from pe_mjx.play import PlayPolicy, resolve_policy
 
-BUILTIN = ("scripted", "random")
 TRIAL_FIELDS = ("success_rate", "travel_distance", "pursuit_cost", "evaders_incapacitated")
 TRIAL_FIELDS += ("length",)
-
-
-@dataclasses.dataclass(frozen=True)
-class PolicySpec:
-    """A policy for one team, resolved: its label, where it came from, and the callable."""
-
-    team: str
-    source: str
-    label: str
-    policy: Policy
-    note: str = ""
-    method: str = ""
-    """The encoder of a learned policy ("mix", ...); the spec itself for built-in ones."""
-    apply: Callable[..., jax.Array] | None = None
-    """`apply(variables, obs, rng) -> actions`: `policy` with its learned state as an input."""
-    variables: Any = None
-    """The learned state `apply` takes ({"params", "normalizer"}; None for built-in ones)."""
-    shape_key: str = ""
-    """Equal for policies whose `apply` compiles to the same program (same network config and
-    action count, or the same built-in policy): one compile serves them all."""
-
-
-def _team_letter(team: str) -> str:
-    return "P" if team == "pursuer" else "E"
-
-
-def resolve_policy(spec: str, team: str, env_config: EnvConfig) -> PolicySpec:
-    """Turns a spec string into a policy for `team` in scenes of `env_config`.
-
-    Raises ValueError (a CheckpointError for runs) with a clear message when it does not fit.
-    """
-    if spec in BUILTIN:
-        policy = make_policy(spec, env_config, team)
-        label = f"{_team_letter(team)}_{spec}"
-        return PolicySpec(
-            team,
-            spec,
-            label,
-            policy,
-            method=spec,
-            apply=lambda variables, obs, rng: policy(obs, rng),
-            shape_key=f"builtin:{spec}",
-        )
-    from pe_mjx.agents import learned_policy, policy_apply
-    from pe_mjx.ppo.checkpoint import CheckpointError, read_meta, restore_policy_params
-
-    meta = read_meta(spec)
-    if team not in meta["network_configs"]:
-        raise ValueError(f"run {spec} did not learn a {team} policy")
-    net = meta["network_configs"][team]
-    trained = EnvConfig.from_dict(meta["env_config"])
-    counts = (trained.pursuer.num_agents, trained.evader.num_agents, trained.arena.num_obstacles)
-    label = f"{_team_letter(team)}_{net['encoder'].upper()}({counts[0]},{counts[1]},{counts[2]})"
-    note = ""
-    here = (env_config.pursuer.num_agents, env_config.evader.num_agents)
-    here += (env_config.arena.num_obstacles,)
-    if net["encoder"] == "mlp" and here != counts:
-        # SPEC 3.1: an MLP cannot generalise; its input is padded/truncated to its training counts.
-        note = "mlp-padded"
-        label += "*"
-    network, variables, _, meta = restore_policy_params(spec, team)
-    have, want = int(meta["num_actions"][team]), env_config.team(team).num_actions
-    if have != want:
-        raise CheckpointError(
-            f"the {team} policy in {spec} has {have} actions but this scene's {team}s have {want}"
-        )
-    policy = learned_policy(network, variables["params"], variables["normalizer"])
-    return PolicySpec(
-        team,
-        str(spec),
-        label,
-        policy,
-        note,
-        method=net["encoder"],
-        apply=policy_apply(network),
-        variables=variables,
-        shape_key=f"net:{have}:{json.dumps(net, sort_keys=True)}",
-    )
 
 
 def trial_metrics(env: PursuitEvasionEnv, final) -> dict[str, np.ndarray]:
     """Per-trial numbers from a batched final state [B] (numpy arrays of shape [B])."""
     w = jax.device_get(final.world)
-    p = env.num_pursuers
-    inactive = ~np.asarray(w.active)
-    cause = np.asarray(w.cause)
-    out = {
-        "success_rate": inactive[:, p:].mean(axis=1),
-        "travel_distance": np.asarray(w.distance)[:, :p].mean(axis=1),
-        "pursuit_cost": inactive[:, :p].sum(axis=1).astype(float),
-        "evaders_incapacitated": inactive[:, p:].sum(axis=1).astype(float),
-        "length": np.asarray(w.step).astype(float),
-    }
-    for code, name in CAUSE_NAMES.items():
-        out[f"pursuers_{name}"] = (cause[:, :p] == code).sum(axis=1).astype(float)
-        out[f"evaders_{name}"] = (cause[:, p:] == code).sum(axis=1).astype(float)
+    counts = outcome_counts(np.asarray(w.cause), np.asarray(w.distance), env.num_pursuers)
+    out = {k: np.asarray(counts[k], dtype=float) for k in TRIAL_FIELDS if k != "length"}
+    out["length"] = np.asarray(w.step).astype(float)
+    for name in CAUSE_NAMES.values():
+        for who in ("pursuers", "evaders"):
+            out[f"{who}_{name}"] = np.asarray(counts[f"{who}_{name}"], dtype=float)
     return out
 
 
 def mean_ci(x: np.ndarray) -> tuple[float, float]:
     """Mean and the half-width of its 95% Student-t confidence interval."""
-    from scipy import stats
+    from scipy import stats  # lazy: scipy takes a second to import, only reports need it
 
     x = np.asarray(x, dtype=float)
     n = len(x)
@@ -185,8 +103,8 @@ def summarize(trials: dict[str, np.ndarray]) -> dict[str, Any]:
 @dataclasses.dataclass
 class PairingResult:
     index: int
-    pursuer: PolicySpec
-    evader: PolicySpec
+    pursuer: PlayPolicy
+    evader: PlayPolicy
     trials: dict[str, np.ndarray]
     summary: dict[str, Any]
     seconds: float
@@ -255,7 +173,7 @@ class _Games:
         self.compiled: dict[tuple, Callable[..., Any]] = {}
         self.shapes_run: set[tuple] = set()
 
-    def _fn(self, p_spec: PolicySpec, e_spec: PolicySpec, record: bool) -> Callable[..., Any]:
+    def _fn(self, p_spec: PlayPolicy, e_spec: PlayPolicy, record: bool) -> Callable[..., Any]:
         key = (p_spec.shape_key, e_spec.shape_key, record)
         if key not in self.compiled:
             p_apply, e_apply, env = p_spec.apply, e_spec.apply, self.env
@@ -342,8 +260,6 @@ def _progress(enabled: bool):
 def _record(
     games: _Games, p_spec, e_spec, keys, result: PairingResult, out: Path, seed: int
 ) -> None:
-    from pe_mjx import trajectory
-
     env = games.env
     final, traj = games.record(p_spec, e_spec, keys)
     # Cut the frames after the longest of the recorded episodes ended.
@@ -615,7 +531,7 @@ def _evaluate_into(
 
 
 __all__ = [
-    "PolicySpec",
+    "PlayPolicy",
     "cross_confrontation",
     "evaluate",
     "markdown_table",

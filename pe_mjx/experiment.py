@@ -26,26 +26,17 @@ import json
 from pathlib import Path
 from typing import Any, Literal
 
-from pe_mjx.config import (
-    ENCODERS,
-    PRESETS,
-    TEAMS,
-    EnvConfig,
-    check_finite,
-    from_dict,
-    get_preset,
-    merge,
-    other_team,
-    to_dict,
-)
+from pe_mjx.config import PRESETS, EnvConfig, check_finite, from_dict, get_preset, merge, to_dict
+from pe_mjx.names import BACKENDS, ENCODERS, TEAMS, other_team
+from pe_mjx.names import BUILTIN_POLICIES as BUILTIN_POLICIES  # re-exported for older imports
 
 Encoder = Literal["mix", "mean", "birnn", "mlp"]
 Backend = Literal["mjx", "kinematic"]
 assert Encoder.__args__ == ENCODERS  # type: ignore[attr-defined]
+assert Backend.__args__ == BACKENDS  # type: ignore[attr-defined]
 
 # Fields `--resume` may change: the budget and how often the run logs, evaluates and saves.
 RESUMABLE = ("env_steps", "eval_every", "eval_envs", "checkpoint_every")
-BUILTIN_POLICIES = ("scripted", "random")
 
 
 def _check(cond: bool, field: str, msg: str) -> None:

@@ -1,4 +1,4 @@
-"""Playing episodes with policies: a jittable `rollout` and the scripted demo match."""
+"""The scripted demo match and the plain-Python summary of one finished episode."""
 
 from __future__ import annotations
 
@@ -8,60 +8,12 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from pe_mjx.config import TEAMS, get_preset
-from pe_mjx.env import CAPTURE, CAUSE_NAMES, PursuitEvasionEnv, State
-from pe_mjx.policies import Policy, make_policy
-
-
-def rollout(
-    env: PursuitEvasionEnv,
-    policies: dict[str, Policy],
-    rng: jax.Array,
-    steps: int | jax.Array,
-    state: State | None = None,
-) -> State:
-    """Plays one arena until it is done or `steps` control steps were taken; returns the last state.
-
-    Pure and jittable (``env`` and ``policies`` are static: close over them or use
-    ``functools.partial``; ``steps`` may be a Python int or a traced int32 scalar, so one compile
-    serves every budget); ``jax.vmap`` it over ``rng`` (and ``state``) for many arenas. Under
-    ``vmap`` finished arenas are frozen while the others play on.
-
-    Args:
-      env: the env (not auto-resetting: the loop stops at ``done``).
-      policies: {"pursuer": policy, "evader": policy}, each ``(obs of its team, rng) -> int32 [A]``.
-      rng: key; when ``state`` is None the episode starts from ``env.reset`` of a key split off it.
-      steps: at most this many control steps (the env's own time limit also ends the episode).
-      state: optional start state (for example from ``env.reset_to``).
-
-    Returns:
-      The state after the last step taken: ``state.world.step`` steps, ``state.done`` set if the
-      episode ended (terminated, or truncated at ``max_steps``).
-    """
-    missing = set(TEAMS) - set(policies)
-    if missing:
-        raise ValueError(f"rollout: policies missing for teams {sorted(missing)}")
-    if isinstance(steps, int) and steps < 0:
-        raise ValueError(f"rollout: steps must be >= 0, got {steps}")
-    rng, reset_rng = jax.random.split(rng)
-    if state is None:
-        state = env.reset(reset_rng)
-    start = state.world.step
-
-    def cond(carry):
-        s, _ = carry
-        return (s.world.step - start < steps) & (s.done == 0)
-
-    def body(carry):
-        s, key = carry
-        key, *team_keys = jax.random.split(key, len(TEAMS) + 1)
-        actions = {
-            team: policies[team](s.obs[team], k) for team, k in zip(TEAMS, team_keys, strict=True)
-        }
-        return env.step(s, actions), key
-
-    final, _ = jax.lax.while_loop(cond, body, (state, rng))
-    return final
+from pe_mjx.config import get_preset
+from pe_mjx.env import PursuitEvasionEnv, State
+from pe_mjx.names import CAUSE_NAMES, TEAMS
+from pe_mjx.outcomes import outcome_counts
+from pe_mjx.policies import make_policy
+from pe_mjx.rollout import rollout
 
 
 def match_summary(env: PursuitEvasionEnv, state: State) -> dict[str, Any]:
@@ -75,20 +27,18 @@ def match_summary(env: PursuitEvasionEnv, state: State) -> dict[str, Any]:
     budget instead).
     """
     w = jax.device_get(state.world)
+    counts = outcome_counts(w.cause, w.distance, env.num_pursuers)
     out: dict[str, Any] = {"steps": int(w.step)}
-    p = env.num_pursuers
-    cause = {"pursuers": w.cause[:p], "evaders": w.cause[p:]}
-    out["evaders_captured"] = int((cause["evaders"] == CAPTURE).sum())
+    out["evaders_captured"] = int(counts["evaders_capture"])
     out["evaders_total"] = env.num_evaders
     out["pursuers_total"] = env.num_pursuers
-    for who, codes in cause.items():
-        for code, name in CAUSE_NAMES.items():
-            out[f"{who}_{name}"] = int((codes == code).sum())
-        out[f"{who}_active"] = int((codes == 0).sum())
-    # SPEC 4: success counts every incapacitated evader (n'), captured or crashed.
-    out["success_rate"] = (env.num_evaders - out["evaders_active"]) / env.num_evaders
-    out["pursuit_cost"] = env.num_pursuers - out["pursuers_active"]
-    out["mean_pursuer_distance"] = round(float(w.distance[:p].mean()), 4)
+    for who in ("pursuers", "evaders"):
+        for name in CAUSE_NAMES.values():
+            out[f"{who}_{name}"] = int(counts[f"{who}_{name}"])
+        out[f"{who}_active"] = int(counts[f"{who}_active"])
+    out["success_rate"] = float(counts["success_rate"])
+    out["pursuit_cost"] = int(counts["pursuit_cost"])
+    out["mean_pursuer_distance"] = round(float(counts["travel_distance"]), 4)
     terminated = bool(jax.device_get(state.info["terminated"]))
     out["terminated"] = terminated
     out["truncated"] = not terminated
@@ -124,4 +74,4 @@ def play_scripted_match(preset: str, seed: int, backend: str, steps: int) -> dic
     return match_summary(env, play(jax.random.key(seed), budget))
 
 
-__all__ = ["match_summary", "play_scripted_match", "rollout"]
+__all__ = ["match_summary", "play_scripted_match"]

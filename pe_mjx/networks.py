@@ -72,20 +72,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pe_mjx.config import ENCODERS
 from pe_mjx.experiment import NetworkConfig
+from pe_mjx.names import ENCODERS, ENTITY_TYPES, MASK_KEYS
 
 __all__ = ["ENCODERS", "MIX_QUERIES", "NetworkConfig", "make_network"]
 MIX_QUERIES = ("own", "all")
 
-ENTITY_TYPES = ("teammates", "opponents", "obstacles")
-MASK_KEYS = {
-    "teammates": "teammate_mask",
-    "opponents": "opponent_mask",
-    "obstacles": "obstacle_mask",
-}
 DIST_INDEX = {"teammates": 1, "opponents": 1, "obstacles": 0}
-FEATURES = {"own": 5, "teammates": 6, "opponents": 6, "obstacles": 4}
 MASKED_LOGIT = -1e9
 _FAR = 1e9  # sort key of padded entities: after every real one
 _LECUN = nn.initializers.lecun_normal()

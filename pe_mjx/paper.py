@@ -8,8 +8,8 @@ scene and training scales each table uses.
 
 from __future__ import annotations
 
-from pe_mjx.config import ENCODERS
 from pe_mjx.experiment import ExperimentConfig, default_config
+from pe_mjx.names import ENCODERS
 
 SCALES = ("16-4-4", "20-5-8", "24-6-12")
 ENV_STEPS = 10_000_000

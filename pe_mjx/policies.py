@@ -21,8 +21,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pe_mjx.config import TEAMS, EnvConfig
+from pe_mjx.config import EnvConfig
 from pe_mjx.env import action_table, arc_offsets
+from pe_mjx.names import BUILTIN_POLICIES, TEAMS
 
 Policy = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
 """(obs of one team in one arena, rng) -> int32 [A] action indices."""
@@ -319,6 +320,7 @@ POLICIES: dict[str, Callable[[EnvConfig, str], Policy]] = {
     "random": random_policy,
 }
 """Name -> factory ``(config, team) -> policy``."""
+assert tuple(POLICIES) == BUILTIN_POLICIES
 
 
 def make_policy(name: str, config: EnvConfig, team: str) -> Policy:

@@ -18,12 +18,13 @@ import jax
 import numpy as np
 from jax import export
 
-from pe_mjx.agents import normalize_obs
-from pe_mjx.config import EnvConfig, other_team
+from pe_mjx.agents import dummy_obs, normalize_obs
+from pe_mjx.config import EnvConfig
 from pe_mjx.env import action_table
 from pe_mjx.export_loader import FORMAT, META, PROGRAM, VERSION
+from pe_mjx.names import other_team
 from pe_mjx.networks import greedy_actions
-from pe_mjx.ppo.checkpoint import CheckpointError, dummy_obs, restore_policy_params
+from pe_mjx.ppo.checkpoint import CheckpointError, restore_policy_params
 
 INPUTS = (
     "own",

@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 from typing import Literal
 
-from pe_mjx.config import ENCODERS
+from pe_mjx.names import ENCODERS
 from pe_mjx.paper import ENV_STEPS, PAPER, TABLES, paper_runs
 
 TableName = Literal[tuple(TABLES)]  # type: ignore[valid-type]

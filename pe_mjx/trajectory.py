@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 
 from pe_mjx.config import EnvConfig
+from pe_mjx.names import NUM_CAUSES
 
 FORMAT_VERSION = 1
-NUM_CAUSES = 6  # env.ACTIVE .. env.OPPONENT
 REQUIRED_KEYS = ("format", "config_json", "poses", "active", "obstacles")
 OPTIONAL_KEYS = ("cause", "meta_json")
 

@@ -23,8 +23,8 @@ from pathlib import Path
 import jax
 import tyro
 
-from pe_mjx.config import ENCODERS
 from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.names import ENCODERS
 from pe_mjx.paper import paper_experiment
 from pe_mjx.policies import make_policy
 from pe_mjx.ppo.train import Trainer

@@ -7,8 +7,8 @@ import math
 import jax
 import jax.numpy as jnp
 
-from pe_mjx.config import TEAMS
 from pe_mjx.env import PursuitEvasionEnv
+from pe_mjx.names import TEAMS
 
 # The order in which a team's observation dict is flattened; `action_mask` is never part of the
 # vector (each adapter hands it over on its own). Keys the env may add later follow, sorted.

@@ -29,8 +29,9 @@ from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 from jaxmarl.environments.spaces import Box, Discrete
 
 from pe_mjx.adapters.common import agent_names, flatten_observation, observation_layout
-from pe_mjx.config import TEAMS, EnvConfig
+from pe_mjx.config import EnvConfig
 from pe_mjx.env import PursuitEvasionEnv, State, make
+from pe_mjx.names import TEAMS
 
 
 class JaxMARLEnv(MultiAgentEnv):

@@ -32,8 +32,9 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from pe_mjx.adapters.common import agent_names, flatten_observation, observation_layout
-from pe_mjx.config import TEAMS, EnvConfig, get_preset
+from pe_mjx.config import EnvConfig, get_preset
 from pe_mjx.env import PursuitEvasionEnv
+from pe_mjx.names import TEAMS
 
 
 @functools.cache

@@ -4,7 +4,7 @@ A run directory holds `checkpoints/<iteration>/` with three orbax items:
   * `train`: the whole `TrainState` (parameters, optimiser and normaliser state, the env batch,
     RNG keys as raw key data, counters), so a resumed run continues bit-for-bit;
   * `policy_<team>`: per learned team, its parameters and observation statistics (what
-    `load_policy` reads, without rebuilding any env);
+    `pe_mjx.play.load_policy` reads, without rebuilding any env);
   * `meta`: JSON with the whole experiment config, the env and network configs it resolved to,
     counters and the format version. Format 1 (before the experiment config) is still read for
     playing its policies; only format 2 runs can be resumed.
@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NoReturn
@@ -26,9 +28,10 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from pe_mjx.agents import init_normalizer, learned_policy
-from pe_mjx.config import TEAMS, EnvConfig
-from pe_mjx.env import AGENT_FEATURES, OBSTACLE_FEATURES, OWN_FEATURES
+from pe_mjx.agents import dummy_obs, init_normalizer
+from pe_mjx.config import EnvConfig
+from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.names import TEAMS
 from pe_mjx.networks import NetworkConfig, make_network
 from pe_mjx.ppo.train import Trainer, TrainState
 from pe_mjx.shipped import resolve_run
@@ -229,7 +232,6 @@ def _is_int(value: Any) -> bool:
 def check_meta(meta: Any, where: str) -> None:
     """Checks a checkpoint's metadata against its schema and sane bounds before anything is
     built from it; raises `CheckpointError` naming the first bad field."""
-    from pe_mjx.experiment import ExperimentConfig
 
     def bad(message: str) -> NoReturn:
         raise CheckpointError(f"{where} has invalid metadata: {message}")
@@ -307,24 +309,6 @@ def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
     return meta
 
 
-def dummy_obs(env_config: EnvConfig, team: str) -> dict[str, jax.Array]:
-    """Zero observations of one arena with the shapes of `env._observe` (for network init)."""
-    a = env_config.team(team).num_agents
-    other = env_config.team("evader" if team == "pursuer" else "pursuer").num_agents
-    k = env_config.arena.num_obstacles
-    n_act = env_config.team(team).num_actions
-    return {
-        "own": jnp.zeros((a, OWN_FEATURES)),
-        "teammates": jnp.zeros((a, a - 1, AGENT_FEATURES)),
-        "opponents": jnp.zeros((a, other, AGENT_FEATURES)),
-        "obstacles": jnp.zeros((a, k, OBSTACLE_FEATURES)),
-        "teammate_mask": jnp.ones((a, a - 1), bool),
-        "opponent_mask": jnp.ones((a, other), bool),
-        "obstacle_mask": jnp.ones((a, k), bool),
-        "action_mask": jnp.ones((a, n_act), bool),
-    }
-
-
 def restore_policy_params(
     run_dir: str | Path, team: str
 ) -> tuple[Any, Any, NetworkConfig, dict[str, Any]]:
@@ -378,37 +362,6 @@ def all_finite(tree: Any) -> bool:
     )
 
 
-def load_policy(
-    run_dir: str | Path,
-    team: str,
-    deterministic: bool = False,
-    env_config: EnvConfig | None = None,
-):
-    """Rebuilds a team's policy from a run directory alone.
-
-    Args:
-      run_dir: a `pe-mjx train --out` directory, or the name of a shipped policy
-        ("mix-20-5-8"; `pe_mjx.shipped.shipped_names()`).
-      team: "pursuer" or "evader".
-      deterministic: greedy actions instead of sampling.
-      env_config: if given, checked for compatibility (the team's action count).
-
-    Returns:
-      A jittable `policy(obs, rng) -> int32 [...]`, obs being that team's observation dict with
-      any leading dims ([A, ...] for one arena).
-    """
-    network, state, _, meta = restore_policy_params(run_dir, team)
-    if env_config is not None:
-        want = env_config.team(team).num_actions
-        have = int(meta["num_actions"][team])
-        if want != have:
-            raise CheckpointError(
-                f"the {team} policy in {run_dir} has {have} actions but this scene's {team}s "
-                f"have {want}"
-            )
-    return learned_policy(network, state["params"], state["normalizer"], deterministic)
-
-
 def read_experiment(run_dir: str | Path) -> dict[str, Any]:
     """The experiment config tree (a dict) saved with the latest checkpoint of a resumable run."""
     meta = read_meta(run_dir)
@@ -418,6 +371,54 @@ def read_experiment(run_dir: str | Path) -> dict[str, Any]:
             f"its policies can be played and evaluated, the run cannot be resumed"
         )
     return meta["experiment"]
+
+
+def _restore_across_versions(
+    run_dir: Path, step: int, trainer: Trainer, abstract: Any, first_error: Exception
+) -> Any:
+    """A train state saved by a pe-mjx whose env state had another structure (e.g. a metric was
+    added since): the teams (parameters, optimiser and normaliser state), the RNG and the
+    counters are restored; the arenas in flight are drawn afresh. Resuming is then exact for
+    the learners but not bit-for-bit for the rollouts, and a warning says so.
+
+    The saved leaves are positional (`_flat`): the teams come first and the RNG and counters
+    last, so both ends are matched by count and every shape is checked.
+    """
+    n_teams = len(jax.tree.leaves(abstract.teams))
+    tail = [abstract.rng, abstract.iteration, abstract.env_steps]
+    try:
+        with _quiet(), _manager(run_dir, create=False) as mngr:
+            saved = mngr.restore(step, args=ocp.args.Composite(train=ocp.args.StandardRestore()))
+        saved = saved.train
+        keys = sorted(saved)
+        want_teams = jax.tree.leaves(abstract.teams)
+        sized = [leaf for leaf in want_teams if math.prod(leaf.shape)]
+        team_keys, tail_keys = keys[: len(sized)], keys[-len(tail) :]
+        for key, leaf in zip(team_keys, sized, strict=True):
+            if tuple(np.shape(saved[key])) != tuple(leaf.shape):
+                raise ValueError(f"team leaf {key} has shape {np.shape(saved[key])}")
+        for key, leaf in zip(tail_keys, tail, strict=True):
+            if tuple(np.shape(saved[key])) != tuple(leaf.shape):
+                raise ValueError(f"leaf {key} has shape {np.shape(saved[key])}")
+    except Exception as err:
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} cannot be restored: {_short(first_error)} (nor "
+            f"its learners alone: {_short(err, 120)})"
+        ) from None
+    values = iter(np.asarray(saved[k]) for k in team_keys)
+    teams = jax.tree.map(
+        lambda leaf: next(values) if math.prod(leaf.shape) else np.zeros(leaf.shape, leaf.dtype),
+        abstract.teams,
+    )
+    rng, iteration, env_steps = (np.asarray(saved[k]) for k in tail_keys)
+    fresh = jax.device_get(keys_to_data(trainer.init(int(iteration) + trainer.config.seed)))
+    print(
+        f"pe-mjx: warning: {run_dir} was saved by another pe-mjx version whose arena state "
+        f"differs ({len(keys)} saved arrays, {n_teams} of them the learners'): resuming its "
+        f"learners, counters and RNG with freshly drawn arenas",
+        file=sys.stderr,
+    )
+    return fresh.replace(teams=teams, rng=rng, iteration=iteration, env_steps=env_steps)
 
 
 def restore_train_state(run_dir: str | Path, trainer: Trainer) -> TrainState:
@@ -439,11 +440,9 @@ def restore_train_state(run_dir: str | Path, trainer: Trainer) -> TrainState:
             restored = mngr.restore(
                 step, args=ocp.args.Composite(train=ocp.args.StandardRestore(_flat(abstract)))
             ).train
+        restored = _unflat(abstract, jax.tree.map(np.asarray, restored))
     except Exception as err:
-        raise CheckpointError(
-            f"checkpoint {step} in {run_dir} cannot be restored: {_short(err)}"
-        ) from None
-    restored = _unflat(abstract, jax.tree.map(np.asarray, restored))
+        restored = _restore_across_versions(run_dir, step, trainer, abstract, err)
     restored = data_to_keys(template, restored)
     state = jax.tree.map(jnp.asarray, restored)
     env_state = jax.device_put(state.env_state, trainer.batch_sharding)

@@ -16,7 +16,9 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from pe_mjx.agents import Policy
-from pe_mjx.experiment import BUILTIN_POLICIES, RESUMABLE, ExperimentConfig
+from pe_mjx.experiment import RESUMABLE, ExperimentConfig
+from pe_mjx.names import TEAMS
+from pe_mjx.play import resolve_policy
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.train import Trainer, TrainState
 
@@ -99,14 +101,13 @@ def resume_config(
 
 
 def resolve_opponents(config: ExperimentConfig) -> dict[str, Policy]:
-    """Frozen policies for the teams that do not learn and play a trained policy (a run
-    directory); "scripted" and "random" are built by the trainer."""
-    opponents = {}
-    for team in ("pursuer", "evader"):
-        spec = config.team(team).policy
-        if spec != "learn" and spec not in BUILTIN_POLICIES:
-            opponents[team] = checkpoint.load_policy(spec, team=team, env_config=config.env)
-    return opponents
+    """The frozen policy of every team that does not learn ("scripted", "random", a run
+    directory or a shipped policy), resolved by `pe_mjx.play.resolve_policy`."""
+    return {
+        team: resolve_policy(config.team(team).policy, team, config.env).policy
+        for team in TEAMS
+        if config.team(team).policy != "learn"
+    }
 
 
 def train(
@@ -289,7 +290,8 @@ def learning_rates(trainer: Trainer, iterations: int) -> dict[str, float]:
     """Each learned team's learning rate after `iterations` iterations (its schedule there)."""
     ppo = trainer.config.ppo
     updates = iterations * ppo.update_epochs * ppo.num_minibatches
-    return {t: float(trainer.schedule(t)(updates)) for t in trainer.learned}
+    rates = {t: trainer.schedule(t) for t in trainer.learned}
+    return {t: float(r(updates) if callable(r) else r) for t, r in rates.items()}
 
 
 def _import_wandb() -> Any:

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from pe_mjx.config import PRESETS, TEAMS, EnvConfig, get_preset
-from pe_mjx.env import BACKENDS, CAUSE_NAMES
+from pe_mjx.config import PRESETS, EnvConfig, get_preset
+from pe_mjx.names import BACKENDS, CAUSE_NAMES, TEAMS
 from pe_mjx.policies import POLICIES
 from pe_mjx.trajectory import Trajectory
 from pe_mjx.viewer.guard import (
@@ -45,10 +45,16 @@ from pe_mjx.viewer.live import (
     PolicyError,
     TeamPolicy,
     fixed_policy,
-    learned_policy,
     load_team_policy,
+    network_team_policy,
 )
-from pe_mjx.viewer.replay import ReplaySource, timestamp, unique_stem, write_recording
+from pe_mjx.viewer.replay import (
+    ReplaySource,
+    export_trajectory,
+    timestamp,
+    unique_stem,
+    write_recording,
+)
 from pe_mjx.viewer.scene import (
     CAUSE_RGB,
     TEAM_RGB,
@@ -285,6 +291,37 @@ class Viewer:
 
     def num_clients(self) -> int:
         return len(self.server.get_clients())
+
+    # Control from any thread, as the GUI buttons do; each returns once the loop has done it.
+
+    def play(self) -> None:
+        """Plays (live arenas step, a replay advances) at the set speed."""
+        self.call(lambda: self._set_playing(True))
+
+    def pause(self) -> None:
+        self.call(lambda: self._set_playing(False))
+
+    def step(self) -> None:
+        """Pauses and advances exactly one control step (one frame of a replay)."""
+        self.call(self._request_step)
+
+    def seek(self, index: int) -> None:
+        """Shows frame `index` of a replay (nothing for live arenas)."""
+        self.call(lambda: self._seek(index))
+
+    def reset(self, seed: int) -> None:
+        """New live arenas drawn from `seed`; a replay goes back to its first frame."""
+        self.call(lambda: self._reset(seed))
+
+    @property
+    def recording(self) -> bool:
+        """Whether a recording (Start recording) is in progress."""
+        return self._serializer is not None
+
+    @property
+    def running(self) -> bool:
+        """Whether the loop thread is alive."""
+        return self._thread.is_alive()
 
     # ------------------------------------------------------------------ errors and status
 
@@ -687,8 +724,6 @@ class Viewer:
         self._saved(paths)
 
     def _export_replay(self) -> None:
-        from pe_mjx.viewer.replay import export_trajectory
-
         if not isinstance(self.source, ReplaySource):
             return
         self.gui_record_info.content = "exporting..."
@@ -737,7 +772,7 @@ class Viewer:
         policies: dict[str, TeamPolicy] = {}
         for team in TEAMS:
             if team in learned:
-                policies[team] = learned_policy(
+                policies[team] = network_team_policy(
                     "training",
                     trainer.networks[team],
                     learned[team]["params"],

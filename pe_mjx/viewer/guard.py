@@ -25,6 +25,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
+from pe_mjx.shipped import resolve_run
+
 MAX_TEXT = 1024
 """Characters of a text input at most."""
 MAX_ARENAS = 64
@@ -247,8 +249,6 @@ class PolicyAccess:
         return dataclasses.replace(self, extra=self.extra + extra)
 
     def allows(self, spec: str) -> bool:
-        from pe_mjx.shipped import resolve_run
-
         try:
             path = resolve_run(spec).resolve()
         except (OSError, RuntimeError, ValueError):

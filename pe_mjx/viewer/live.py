@@ -8,7 +8,7 @@ every iteration without recompiling.
 
 One step of the loop (`tick`, jitted whole) is ``env.step`` with the actions decided on the
 previous state, then the policies on the new state: the attention shown with a frame is the one
-that chooses the next move from it. Finished arenas freeze (as in `episodes.play_episodes`).
+that chooses the next move from it. Finished arenas freeze (`rollout.freeze`).
 """
 
 from __future__ import annotations
@@ -21,9 +21,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pe_mjx.config import TEAMS, EnvConfig
-from pe_mjx.env import CAPTURE, CAUSE_NAMES, PursuitEvasionEnv, State
-from pe_mjx.policies import POLICIES, make_policy
+from pe_mjx.agents import attention_policy_apply, dummy_obs
+from pe_mjx.config import EnvConfig
+from pe_mjx.env import PursuitEvasionEnv, State
+from pe_mjx.names import BUILTIN_POLICIES, CAPTURE, CAUSE_NAMES, TEAMS
+from pe_mjx.outcomes import outcome_counts
+from pe_mjx.play import resolve_policy
+from pe_mjx.ppo.checkpoint import CheckpointError
+from pe_mjx.rollout import freeze
+from pe_mjx.shipped import resolve_run
 from pe_mjx.viewer.guard import PolicyAccess
 from pe_mjx.viewer.scene import AttentionOverlay, Frame
 
@@ -60,7 +66,7 @@ def fixed_policy(label: str, policy: Callable[[dict, jax.Array], jax.Array]) -> 
     return TeamPolicy(label=label, apply=apply)
 
 
-def learned_policy(
+def network_team_policy(
     label: str,
     network: Any,
     params: Any,
@@ -68,7 +74,8 @@ def learned_policy(
     encoder: str,
     deterministic: bool = False,
 ) -> TeamPolicy:
-    """A network policy; MIX networks also return their own-token attention (mean over heads).
+    """A network policy (`agents.attention_policy_apply`); MIX networks also return their
+    own-token attention (mean over heads).
 
     Args:
       network: the `networks.ActorCritic` module.
@@ -76,36 +83,17 @@ def learned_policy(
       encoder: the network's encoder name ("mix" gives attention weights).
       deterministic: greedy actions instead of sampling.
     """
-    from pe_mjx.networks import greedy_actions, sample_actions
-    from pe_mjx.ppo.train import normalize_obs
-
-    with_attention = encoder == "mix"
-
-    def apply(p: Any, obs: dict[str, jax.Array], rng: jax.Array):
-        inputs = normalize_obs(obs, p["normalizer"])
-        attention = None
-        if with_attention:
-            (logits, _), variables = network.apply(p["params"], inputs, mutable=["intermediates"])
-            weights = variables["intermediates"]["encoder"]["attention"][0]  # [A, H, M]
-            attention = jnp.mean(weights, axis=-2)
-        else:
-            logits, _ = network.apply(p["params"], inputs)
-        actions = greedy_actions(logits) if deterministic else sample_actions(logits, rng)
-        return actions.astype(jnp.int32), attention
-
     return TeamPolicy(
         label=label,
-        apply=apply,
+        apply=attention_policy_apply(network, encoder, deterministic),
         params={"params": params, "normalizer": normalizer},
-        has_attention=with_attention,
+        has_attention=encoder == "mix",
         deterministic=deterministic,
     )
 
 
 def check_fits(policy: TeamPolicy, config: EnvConfig, team: str) -> None:
     """Traces the policy on this scene's observation shapes; PolicyError if it does not fit."""
-    from pe_mjx.ppo.checkpoint import dummy_obs
-
     obs = dummy_obs(config, team)
     a = config.team(team).num_agents
     try:
@@ -148,42 +136,33 @@ def load_team_policy(
     spec = spec.strip()
     if team not in TEAMS:
         raise PolicyError(f"unknown team {team!r}; expected one of {TEAMS}")
-    if spec in POLICIES:
-        policy = fixed_policy(spec, make_policy(spec, config, team))
+    if spec in BUILTIN_POLICIES:
+        policy = fixed_policy(spec, resolve_policy(spec, team, config).policy)
     else:
-        from pe_mjx.ppo.checkpoint import CheckpointError, restore_policy_params
-
         if not spec:
             raise PolicyError(f"no {team} policy given")
+        names = " or ".join(BUILTIN_POLICIES)
         if access is not None and not access.allows(spec):
             raise PolicyError(
-                f"{team} policy {spec!r}: not {' or '.join(POLICIES)} and not a run directory "
+                f"{team} policy {spec!r}: not {names} and not a run directory "
                 f"under {access.describe()} (`pe-mjx view --policy-roots` allows others)"
             )
-        from pe_mjx.shipped import resolve_run
-
-        path = resolve_run(spec)
-        if not path.exists():
-            names = ", ".join(POLICIES)
-            raise PolicyError(f"{team} policy {spec!r}: not one of {names} and no such directory")
+        if not resolve_run(spec).exists():
+            raise PolicyError(
+                f"{team} policy {spec!r}: not one of {', '.join(BUILTIN_POLICIES)} and no such "
+                f"directory"
+            )
         try:
-            network, state, net_config, meta = restore_policy_params(path, team)
+            resolved = resolve_policy(spec, team, config, deterministic)
         except CheckpointError as err:
             raise PolicyError(str(err)) from None
-        have = int(meta["num_actions"][team])
-        want = config.team(team).num_actions
-        if have != want:
-            raise PolicyError(
-                f"the {team} policy in {spec} has {have} actions but this scene's {team}s "
-                f"have {want}"
-            )
-        params = jax.device_get(state)
-        policy = learned_policy(
-            str(spec),
-            network,
-            params["params"],
-            params["normalizer"],
-            net_config.encoder,
+        variables = jax.device_get(resolved.variables)
+        policy = network_team_policy(
+            spec,
+            resolved.network,
+            variables["params"],
+            variables["normalizer"],
+            resolved.method,
             deterministic,
         )
     check_fits(policy, config, team)
@@ -250,14 +229,7 @@ class LiveRun:
             return actions, attention
 
         def tick(state: State, actions: dict, params: dict, rng: jax.Array):
-            new = jax.vmap(env.step)(state, actions)
-            finished = state.done > 0
-
-            def keep(old, nxt):
-                mask = finished.reshape(finished.shape + (1,) * (nxt.ndim - 1))
-                return jnp.where(mask, old, nxt)
-
-            new = jax.tree.map(keep, state, new)
+            new = freeze(state, jax.vmap(env.step)(state, actions))
             next_actions, attention = decide(new, params, rng)
             return new, next_actions, attention
 
@@ -386,18 +358,18 @@ def arena_counters(
 ) -> list[dict[str, Any]]:
     """Counters per arena from active [B, N], cause [B, N] and step [B] (frames of any source)."""
     p = config.pursuer.num_agents
+    counts = outcome_counts(np.asarray(cause), np.zeros(np.shape(cause)), p)
     rows = []
     for b in range(active.shape[0]):
-        c = cause[b]
         row: dict[str, Any] = {
             "time": float(step[b]) * config.control_dt,
             "pursuers": int(np.sum(active[b, :p])),
             "evaders": int(np.sum(active[b, p:])),
-            "captured": int(np.sum(c[p:] == CAPTURE)),
+            "captured": int(counts["evaders_capture"][b]),
         }
         for code, name in CAUSE_NAMES.items():
             if code != CAPTURE:
-                row[name] = int(np.sum(c == code))
+                row[name] = int(counts[f"pursuers_{name}"][b] + counts[f"evaders_{name}"][b])
         row["done"] = bool(done[b] > 0) if done is not None else False
         rows.append(row)
     return rows
@@ -411,6 +383,6 @@ __all__ = [
     "attention_targets",
     "check_fits",
     "fixed_policy",
-    "learned_policy",
     "load_team_policy",
+    "network_team_policy",
 ]

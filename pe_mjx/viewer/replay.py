@@ -20,9 +20,11 @@ from typing import Any
 
 import numpy as np
 
+from pe_mjx.config import get_preset
+from pe_mjx.names import TEAMS
 from pe_mjx.trajectory import Trajectory
-from pe_mjx.viewer.live import arena_counters
-from pe_mjx.viewer.scene import ArenaScene, Frame, configure_lighting
+from pe_mjx.viewer.live import LiveRun, arena_counters, load_team_policy
+from pe_mjx.viewer.scene import ArenaScene, Frame, TrailBuffer, configure_lighting
 
 
 class ReplaySource:
@@ -199,10 +201,6 @@ def export_live(
 
     Raises PolicyError (a ValueError) when a policy does not fit; nothing is written then.
     """
-    from pe_mjx.config import TEAMS, get_preset
-    from pe_mjx.viewer.live import LiveRun, load_team_policy
-    from pe_mjx.viewer.scene import TrailBuffer
-
     config = get_preset(preset)
     specs = {"pursuer": pursuers, "evader": evaders}
     policies = {t: load_team_policy(specs[t], config, t) for t in TEAMS}

@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from pe_mjx import scene as mjcf
-from pe_mjx.config import TEAMS, EnvConfig
-from pe_mjx.env import CAPTURE, OBSTACLE, OPPONENT, TEAMMATE, WALL
+from pe_mjx.config import EnvConfig
+from pe_mjx.names import CAPTURE, OBSTACLE, OPPONENT, TEAMMATE, TEAMS, WALL
 
 ARENA_GAP = 1.0
 """Metres between the walls of neighbouring arenas in the grid."""
@@ -319,6 +319,12 @@ class ArenaScene:
             )
         m = max(1, self.num_agents - 1 + k)
         self._batched("attention", _mesh("box"), m, visible=False, batched_colors=(0, 0, 0))
+
+    @property
+    def handles(self) -> dict[str, Any]:
+        """The viser scene handles by kind ("pursuers", "evaders", "obstacles", ...): one batched
+        handle per body kind."""
+        return dict(self._handles)
 
     def camera_pose(
         self, aspect: float = 4 / 3, panel: float = 0.3

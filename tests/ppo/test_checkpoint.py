@@ -12,13 +12,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tiny_config import tiny
 
 import pe_mjx
 from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.play import load_policy, resolve_policy
 from pe_mjx.ppo import checkpoint
-from pe_mjx.ppo.checkpoint import CheckpointError, load_policy
+from pe_mjx.ppo.checkpoint import CheckpointError
 from pe_mjx.ppo.run import resume_config, train
+from tests.tiny_config import tiny
 
 CONFIG = tiny()
 
@@ -228,8 +229,6 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
     assert missing.returncode != 0 and "does not exist" in missing.stderr
     assert "Traceback" not in missing.stderr
     # Team mismatch: this run learned only the pursuer.
-    from pe_mjx.evaluate import resolve_policy
-
     with pytest.raises(ValueError, match=r"did not learn an? evader"):
         resolve_policy(str(out), "evader", pe_mjx.get_preset("4-1-2"))
     bad = subprocess.run(
@@ -363,3 +362,32 @@ def test_an_unwritable_checkpoint_directory_fails_fast(runs, tmp_path):
     finally:
         if ckpt.is_dir():
             ckpt.chmod(0o700)
+
+
+def test_a_run_saved_by_a_version_with_another_arena_state_resumes_its_learners(
+    runs, monkeypatch, capsys
+):
+    """An env metric added since the save changes the arena state's structure: the learners,
+    the RNG and the counters still come back exactly, the arenas are drawn afresh, with a
+    warning."""
+    from pe_mjx.env import PursuitEvasionEnv
+    from pe_mjx.ppo.train import Trainer
+
+    root, straight, _ = runs
+    plain = PursuitEvasionEnv._metrics
+
+    def more_metrics(self, *args, **kwargs):
+        return {**plain(self, *args, **kwargs), "new_metric": jnp.zeros(())}
+
+    monkeypatch.setattr(PursuitEvasionEnv, "_metrics", more_metrics)
+    trainer = Trainer(CONFIG)
+    state = checkpoint.restore_train_state(root / "straight", trainer)
+    assert "another pe-mjx version" in capsys.readouterr().err
+    assert "new_metric" in state.env_state.metrics
+    assert int(state.iteration) == int(straight.iteration)
+    assert int(state.env_steps) == int(straight.env_steps)
+    for team in ("pursuer", "evader"):
+        assert _max_diff(straight.teams[team].params, state.teams[team].params) == 0.0
+        assert _max_diff(straight.teams[team].opt_state, state.teams[team].opt_state) == 0.0
+    new, _ = jax.jit(trainer.iteration)(state)
+    assert int(new.iteration) == int(straight.iteration) + 1

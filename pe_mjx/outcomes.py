@@ -1,0 +1,44 @@
+"""One count of how episodes ended: causes of incapacitation, success rate, pursuit cost.
+
+The evaluator (`trial_metrics`), the demo (`match.match_summary`) and the viewer's counters count
+with `outcome_counts`, so that they agree by construction. Plain array operators only: it takes
+numpy or jax arrays, unbatched [N] or with any leading dims [..., N].
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pe_mjx.names import ACTIVE, CAUSE_NAMES
+
+
+def outcome_counts(cause: Any, distance: Any, num_pursuers: int) -> dict[str, Any]:
+    """Outcome of episodes from the final `World.cause` and `World.distance`.
+
+    Args:
+      cause: int [..., N], the incapacitation cause of every agent (pursuers first), 0 = active.
+      distance: float [..., N], the distance each agent travelled (metres).
+      num_pursuers: P, the number of pursuers among the N agents.
+
+    Returns:
+      Arrays of shape [...]: ``pursuers_<cause>`` and ``evaders_<cause>`` (agents downed by each
+      cause of `names.CAUSE_NAMES`), ``pursuers_active``, ``evaders_active``,
+      ``evaders_incapacitated`` (n'), ``success_rate`` (n'/n, SPEC 4: an evader counts whether it
+      was captured or crashed), ``pursuit_cost`` (m', the pursuers downed) and
+      ``travel_distance`` (the pursuers' mean distance travelled).
+    """
+    p = num_pursuers
+    out: dict[str, Any] = {}
+    for who, codes in (("pursuers", cause[..., :p]), ("evaders", cause[..., p:])):
+        for code, name in CAUSE_NAMES.items():
+            out[f"{who}_{name}"] = (codes == code).sum(axis=-1)
+        out[f"{who}_active"] = (codes == ACTIVE).sum(axis=-1)
+    num_evaders = cause.shape[-1] - p
+    out["evaders_incapacitated"] = num_evaders - out["evaders_active"]
+    out["success_rate"] = out["evaders_incapacitated"] / num_evaders
+    out["pursuit_cost"] = p - out["pursuers_active"]
+    out["travel_distance"] = distance[..., :p].mean(axis=-1)
+    return out
+
+
+__all__ = ["outcome_counts"]

@@ -1,0 +1,57 @@
+"""play.resolve_policy: one resolver for builtin names, run directories and shipped policies."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from pe_mjx import get_preset
+from pe_mjx.agents import dummy_obs
+from pe_mjx.play import load_policy, resolve_policy
+from pe_mjx.ppo.checkpoint import CheckpointError
+
+SHIPPED = "mix-20-5-8"
+
+
+def test_builtin_policies_resolve_without_a_checkpoint():
+    config = get_preset("4-1-2")
+    p = resolve_policy("scripted", "pursuer", config)
+    assert (p.label, p.method, p.shape_key, p.learned) == (
+        "P_scripted",
+        "scripted",
+        "builtin:scripted",
+        False,
+    )
+    actions = p.apply(None, dummy_obs(config, "pursuer"), jax.random.key(0))
+    assert actions.shape == (4,)
+    with pytest.raises(ValueError, match="env config"):
+        resolve_policy("random", "evader", None)
+
+
+def test_shipped_policy_resolves_once_with_both_forms():
+    config = get_preset("4-1-2")
+    p = resolve_policy(SHIPPED, "evader", config, deterministic=True)
+    assert p.learned and p.method == "mix" and p.label == "E_MIX(20,5,8)"
+    assert p.network is not None and p.network_config.encoder == "mix"
+    obs, key = dummy_obs(config, "evader"), jax.random.key(1)
+    # The closed-over and the argument forms are the same policy.
+    np.testing.assert_array_equal(p.policy(obs, key), p.apply(p.variables, obs, key))
+    np.testing.assert_array_equal(
+        p.policy(obs, key), load_policy(SHIPPED, "evader", True)(obs, key)
+    )
+
+
+def test_errors_name_the_problem(tmp_path):
+    config = get_preset("4-1-2")
+    with pytest.raises(CheckpointError, match="unknown team"):
+        resolve_policy(SHIPPED, "referee", config)
+    with pytest.raises(CheckpointError):
+        resolve_policy(tmp_path / "nowhere", "pursuer", config)
+    other = config.replace(
+        pursuer=dataclasses.replace(config.pursuer, num_speeds=config.pursuer.num_speeds + 1)
+    )
+    with pytest.raises(CheckpointError, match="actions"):
+        resolve_policy(SHIPPED, "pursuer", other)
