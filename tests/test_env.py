@@ -13,7 +13,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import (
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pe_mjx import env as pe_env
+from pe_mjx.config import PRESETS, get_preset
+from pe_mjx.env import CAPTURE, OBSTACLE, OPPONENT, TEAMMATE, WALL, AutoResetWrapper
+from tests.conftest import (
     E_FULL,
     E_STOP,
     P_FULL,
@@ -24,12 +30,6 @@ from conftest import (
     sample_actions,
     variant_config,
 )
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from pe_mjx import env as pe_env
-from pe_mjx.config import PRESETS, get_preset
-from pe_mjx.env import CAPTURE, OBSTACLE, OPPONENT, TEAMMATE, WALL, AutoResetWrapper
 
 BACKENDS = ("kinematic", "mjx")
 TEAMS = ("pursuer", "evader")

@@ -9,10 +9,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-from conftest import first
 
 from pe_mjx import export, scene
 from pe_mjx.config import get_preset
+from tests.conftest import first
 
 PRESET, SEED = "4-1-2", 3
 

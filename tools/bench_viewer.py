@@ -6,8 +6,11 @@ Starts the viewer (``--arenas`` arenas of ``--preset``, scripted teams by defaul
 each frame is one control step of every arena plus one atomic scene update. It also checks that
 the default 10 steps/s pacing is met. Writes the results as JSON and one screenshot.
 
-    .venv/bin/python tools/bench_viewer.py                     # 24-6-12, 4 arenas, both backends
-    .venv/bin/python tools/bench_viewer.py --backends kinematic --seconds 10
+    .venv/bin/python -m tools.bench_viewer                     # 24-6-12, 4 arenas, both backends
+    .venv/bin/python -m tools.bench_viewer --backends kinematic --seconds 10
+
+Run it as a module from the checkout: it drives Chromium with the viewer tests' driver
+(tests/viewer/browser.py).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import numpy as np
 from PIL import Image
 
 from pe_mjx.viewer import start_viewer
-from pe_mjx.viewer.browser import Browser, find_chromium, scene_region, team_pixels
+from tests.viewer.browser import Browser, find_chromium, scene_region, team_pixels
 
 HIDE_NOTIFICATIONS = (
     "document.querySelectorAll('[class*=\"Notification-root\"]').forEach(e => e.remove()); true"
@@ -55,7 +58,7 @@ def measure(args: argparse.Namespace, backend: str, browser: Browser, shot: Path
     try:
         page = browser.new_page(viewer.url)
         page.wait_for_image(shows_both_teams, timeout=180)
-        viewer.call(lambda: viewer._set_playing(True))
+        viewer.play()
         time.sleep(1.0)  # warm: first frames after play
         f0, t0 = viewer.frames_streamed, time.perf_counter()
         time.sleep(args.seconds)
@@ -74,10 +77,10 @@ def measure(args: argparse.Namespace, backend: str, browser: Browser, shot: Path
         if shot is not None:
             # Early in a fresh episode, at 10 steps/s: both teams on screen, short trails.
             viewer.gui_att_show.value = True
-            viewer.call(lambda: viewer._reset(args.seed))
+            viewer.reset(args.seed)
             page.evaluate(HIDE_NOTIFICATIONS)
             time.sleep(4.0)
-            viewer.call(lambda: viewer._set_playing(False))
+            viewer.pause()
             time.sleep(1.0)
             image = page.screenshot()
             if not shows_both_teams(image):

@@ -12,10 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tiny_config import tiny
 
 from pe_mjx.experiment import default_config
 from pe_mjx.ppo.train import Trainer
+from tests.tiny_config import tiny
 
 
 def params_close(a, b, atol=0.0) -> bool:

@@ -14,10 +14,10 @@ import threading
 from pathlib import Path
 
 import pytest
-from viewer_helpers import LIVE_PRESET, synthetic_trajectory, wait_until
 
 from pe_mjx.trajectory import Trajectory
-from pe_mjx.viewer.browser import Browser, require_chromium
+from tests.viewer.browser import Browser, require_chromium
+from tests.viewer.viewer_helpers import LIVE_PRESET, synthetic_trajectory, wait_until
 
 
 @pytest.fixture(scope="session")
@@ -66,10 +66,9 @@ class TinyRun:
 def tiny_run(tmp_path_factory):
     """Three PPO iterations (MIX pursuer learned, scripted evader) on 2-1-1 with the training view
     attached, as `pe-mjx train --view` wires it. The viewer stays up for the session."""
-    from tiny_config import tiny
-
     from pe_mjx.ppo.run import train
     from pe_mjx.viewer import start_viewer
+    from tests.tiny_config import tiny
 
     config = tiny(
         preset="2-1-1",

@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 import viser
 from PIL import Image
-from viewer_helpers import (
+
+from pe_mjx.viewer import start_viewer
+from tests.viewer.viewer_helpers import (
     ForgedClient,
     gui_uuid,
     robots_mask,
@@ -23,8 +25,6 @@ from viewer_helpers import (
     team_counts,
     wait_until,
 )
-
-from pe_mjx.viewer import start_viewer
 
 RENDER_TIMEOUT = 90.0
 
@@ -54,7 +54,10 @@ def wait_for_text(page, text: str, timeout: float, what: str) -> None:
 
 
 def set_playing(viewer, playing: bool) -> None:
-    viewer.call(lambda: viewer._set_playing(playing))
+    if playing:
+        viewer.play()
+    else:
+        viewer.pause()
 
 
 def moved(page, seconds: float = 1.5, tries: int = 3) -> int:
@@ -133,7 +136,7 @@ def test_two_tabs_then_one_closes_and_one_reloads(browser, live_viewer):
         assert moved(first) > 50 and moved(second) > 50
         second.close()
         wait_until(lambda: live_viewer.num_clients() == 1, timeout=20, what="the tab to leave")
-        assert live_viewer._thread.is_alive()
+        assert live_viewer.running
         assert moved(first) > 50, "the remaining tab stopped updating"
         first.reload()
         first.wait_for_image(shows_both_teams, timeout=RENDER_TIMEOUT)
@@ -198,7 +201,7 @@ def test_recording_exports_open_in_the_browser(browser, live_viewer, static_serv
     page, _ = open_viewer(browser, live_viewer.url)
     try:
         page.click_text("Start recording")
-        wait_until(lambda: live_viewer._serializer is not None, timeout=10, what="recording")
+        wait_until(lambda: live_viewer.recording, timeout=10, what="recording")
         time.sleep(2.0)
         page.click_text("Stop recording")
         wait_until(lambda: len(live_viewer.recordings) >= 2, timeout=60, what="the files")
@@ -221,10 +224,10 @@ def test_replay_time_slider_and_export(browser, trajectory, static_server, tmp_p
         click_until(page, "Pause", lambda: not viewer.playing, "the Pause click")
         text = page.evaluate("document.body.innerText")
         assert "replay" in text and "Frame" in text
-        viewer.call(lambda: viewer._seek(0))
+        viewer.seek(0)
         time.sleep(0.7)
         start = robots_mask(page.screenshot())
-        viewer.call(lambda: viewer._seek(30))
+        viewer.seek(30)
         time.sleep(0.7)
         later = robots_mask(page.screenshot())
         assert int(np.sum(start ^ later)) > 50, "the robots did not move between frames 0 and 30"
@@ -251,7 +254,7 @@ def test_training_view_shows_the_latest_policy(browser, tiny_run):
 
 def attention_pixels(image: np.ndarray) -> int:
     """Pixels of the teammate (green) and obstacle (purple) attention bars (lit, so by hue)."""
-    from pe_mjx.viewer.browser import scene_region
+    from tests.viewer.browser import scene_region
 
     rgb = scene_region(image).astype(np.int32)
     r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]

@@ -12,9 +12,9 @@ import time
 import zipfile
 
 import pytest
-from viewer_helpers import shows_both_teams, synthetic_trajectory
 
 from pe_mjx.trajectory import save
+from tests.viewer.viewer_helpers import shows_both_teams, synthetic_trajectory
 
 CLI = [sys.executable, "-m", "pe_mjx.cli"]
 

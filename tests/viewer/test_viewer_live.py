@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from pe_mjx.config import get_preset
-from pe_mjx.viewer.browser import require_chromium
 from pe_mjx.viewer.live import (
     LiveRun,
     PolicyError,
     attention_targets,
     load_team_policy,
 )
+from tests.viewer.browser import require_chromium
 
 
 def test_unknown_policy_names_and_paths_are_clear_errors(tmp_path):

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 import viser
-from viewer_helpers import synthetic_trajectory
 
 from pe_mjx import scene as mjcf
 from pe_mjx.config import get_preset
@@ -29,6 +28,7 @@ from pe_mjx.viewer.scene import (
     trail_segments,
     yaw_to_wxyz,
 )
+from tests.viewer.viewer_helpers import synthetic_trajectory
 
 
 def test_grid_offsets_are_centred_and_do_not_overlap():
@@ -116,7 +116,7 @@ def test_arena_scene_handles_follow_the_frame(server):
     config = get_preset("4-1-2")
     scene = ArenaScene(server, config, num_arenas=2)
     try:
-        handles = scene._handles
+        handles = scene.handles
         assert handles["pursuers"].batched_positions.shape == (2 * 4, 3)
         assert handles["evaders"].batched_positions.shape == (2 * 1, 3)
         assert handles["obstacles"].batched_positions.shape == (2 * 2, 3)

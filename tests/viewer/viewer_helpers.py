@@ -11,7 +11,7 @@ import numpy as np
 from pe_mjx.config import get_preset
 from pe_mjx.env import CAPTURE, WALL
 from pe_mjx.trajectory import Trajectory
-from pe_mjx.viewer.browser import scene_region, team_pixels
+from tests.viewer.browser import scene_region, team_pixels
 
 LIVE_PRESET = "4-1-2"
 
