@@ -27,14 +27,18 @@ EVAL_KEYS = ("length", "success_rate", "evader_distance", "pursuer_distance", "p
 
 @dataclasses.dataclass(frozen=True)
 class Args:
-    runs: tuple[Path, ...]
+    runs: tyro.conf.Positional[tuple[Path, ...]]
     """Run directories (each with config.json and tb/)."""
     out: Path
     """Output stem: writes <out>.json, <out>.md and <out>/<run>.json."""
     reference: Path | None = None
-    """Run whose config the others are compared with (default: the first)."""
+    """Run directory, or a config.json file, that the others are compared with (default: the
+    first run)."""
     window: int = 3
     """Logged points averaged at the start and at the end of each curve."""
+    ignore: tuple[str, ...] = ("eval_every", "eval_envs")
+    """Config fields left out of the "changed" column (e.g. env.physics_dt, which the kinematic
+    backend does not use)."""
 
 
 def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
@@ -73,7 +77,7 @@ def summarize(run: Path, reference: dict[str, object], window: int) -> dict:
     return {"run": run.name, "changed": changed, "curves": curves}
 
 
-def markdown(rows: list[dict]) -> str:
+def markdown(rows: list[dict], ignore: tuple[str, ...] = ()) -> str:
     lines = [
         "| run | changed | env steps | eval length (first -> last) | evader travel m | "
         "evader approx. KL |",
@@ -85,7 +89,7 @@ def markdown(rows: list[dict]) -> str:
         travel = c.get("eval/evader_vs_scripted/evader_distance")
         kl = c.get("loss/evader/approx_kl")
         changed = ", ".join(
-            f"{k}={v}" for k, v in row["changed"].items() if k not in ("eval_every", "eval_envs")
+            f"{k}={v}" for k, v in row["changed"].items() if k not in ignore
         )
         steps = f"{length['last_step']:,}" if length else "-"
 
@@ -104,15 +108,16 @@ def main() -> None:
     runs = [r for r in args.runs if (r / "config.json").is_file()]
     if not runs:
         raise SystemExit("no run directory with a config.json given")
-    ref_dir = args.reference or runs[0]
-    reference = _flat(json.loads((ref_dir / "config.json").read_text())["experiment"])
+    ref = args.reference or runs[0]
+    ref_file = ref if ref.is_file() else ref / "config.json"
+    reference = _flat(json.loads(ref_file.read_text())["experiment"])
     rows = [summarize(run, reference, args.window) for run in runs]
     args.out.mkdir(parents=True, exist_ok=True)
     for run in runs:
         shutil.copyfile(run / "config.json", args.out / f"{run.name}.json")
     args.out.with_suffix(".json").write_text(json.dumps(rows, indent=2, sort_keys=True) + "\n")
-    args.out.with_suffix(".md").write_text(markdown(rows))
-    print(markdown(rows))
+    args.out.with_suffix(".md").write_text(markdown(rows, args.ignore))
+    print(markdown(rows, args.ignore))
 
 
 if __name__ == "__main__":

@@ -118,13 +118,15 @@ class Trainer:
             for t in self.learned
         }
 
-    def schedule(self, team: str) -> optax.Schedule:
+    def schedule(self, team: str) -> optax.Schedule | float:
         """The team's learning rate per gradient step (its own `learning_rate` if set, else
-        `ppo.learning_rate`; decayed linearly to 0 over the budget unless constant)."""
+        `ppo.learning_rate`; decayed linearly to 0 over the budget unless constant). A constant
+        rate stays a float: optax's Adam then keeps no step count, and checkpoints keep their
+        structure."""
         ppo = self.config.ppo
         lr = self.config.team(team).learning_rate or ppo.learning_rate
         if ppo.lr_schedule == "constant":
-            return optax.constant_schedule(lr)
+            return lr
         updates_per_iter = ppo.update_epochs * ppo.num_minibatches
         return optax.linear_schedule(
             lr, 0.0, transition_steps=self.config.num_iterations * updates_per_iter
