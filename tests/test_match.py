@@ -113,7 +113,7 @@ def test_demo_cli_prints_the_match():
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--preset", "9-9-9"], "unknown preset"),
+        (["--preset", "9-9-9"], "invalid choice"),
         (["--backend", "bullet"], "backend"),
         (["--steps", "0"], "steps"),
     ],
