@@ -161,7 +161,7 @@ def test_cli_end_to_end_and_bad_inputs(tmp_path):
     assert again.returncode != 0 and "already holds results" in again.stderr
     for args, message in (
         (("--preset", "9-9-9"), "invalid choice '9-9-9' for argument '--preset'"),
-        (("--pursuers", str(tmp_path / "missing-run")), "does not exist"),
+        (("--pursuers", str(tmp_path / "missing-run")), "is not scripted, random, a shipped"),
         (("--trials", "0"), "trials"),
     ):
         bad = _cli(*args, "--out", str(tmp_path / "bad"), timeout=300)
