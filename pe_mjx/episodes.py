@@ -5,10 +5,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from pe_mjx.config import TEAMS
 from pe_mjx.env import PursuitEvasionEnv, State
-from pe_mjx.match import rollout
+from pe_mjx.names import TEAMS
 from pe_mjx.policies import Policy
+from pe_mjx.rollout import act, freeze, rollout
 
 
 def play_episodes(
@@ -21,7 +21,7 @@ def play_episodes(
     """Plays one episode per key (one vmapped batch of B arenas) until every one is done.
 
     Arena i's episode (its reset and every action sampled) depends on `keys[i]` alone, exactly as
-    `match.rollout(env, policies, keys[i], max_steps)`, so a subset of trials can be replayed with
+    `rollout(env, policies, keys[i], max_steps)`, so a subset of trials can be replayed with
     a subset of the keys. Not jitted here; jit the caller.
 
     Args:
@@ -42,9 +42,8 @@ def play_episodes(
         return jax.vmap(lambda k: rollout(env, policies, k, max_steps))(keys)
 
     def step(s: State, key: jax.Array) -> tuple[State, jax.Array]:
-        # The same key splits as `match.rollout`, so that every path plays the same episode.
-        key, *team_keys = jax.random.split(key, len(TEAMS) + 1)
-        actions = {t: policies[t](s.obs[t], k) for t, k in zip(TEAMS, team_keys, strict=True)}
+        # `act` splits keys as `rollout` does, so that every path plays the same episode.
+        actions, key = act(policies, s.obs, key)
         return env.step(s, actions), key
 
     def zero_returns(s: State) -> dict[str, jax.Array]:
@@ -59,7 +58,7 @@ def play_episodes(
         return {"poses": jnp.concatenate([w.pos, w.yaw[..., None]], axis=-1), "active": w.active}
 
     def one_arena_returns(rng):
-        # As `match.rollout`, the while loop stops at `done` (under vmap, finished arenas freeze).
+        # As `rollout`, the while loop stops at `done` (under vmap, finished arenas freeze).
         rng, reset_rng = jax.random.split(rng)
         state = env.reset(reset_rng)
 
@@ -83,7 +82,7 @@ def play_episodes(
             s, key, ret = carry
             nxt, key = step(s, key)
             finished = s.done > 0
-            s = jax.tree.map(lambda old, new: jnp.where(finished, old, new), s, nxt)
+            s = freeze(s, nxt)
             ret = add(ret, s, ~finished)
             return (s, key, ret), pose_of(s)
 
