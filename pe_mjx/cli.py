@@ -218,10 +218,10 @@ def run_train(args: TrainArgs) -> None:
         os._exit(2)
     except (CheckpointError, TrainingError) as err:
         _fail(str(err))
-    _training_summary(out, state)
+    _training_summary(out, state, config)
 
 
-def _training_summary(out: Path, state) -> None:
+def _training_summary(out: Path, state, config: ExperimentConfig) -> None:
     """What the run reached (its last evaluation) and the commands to look at it."""
     from pe_mjx.plots import read_scalars
 
@@ -241,9 +241,13 @@ def _training_summary(out: Path, state) -> None:
     print("next:")
     print(
         f"  pe-mjx evaluate --pursuers {' '.join(dict.fromkeys([pursuers, 'scripted']))} "
-        f"--evaders {' '.join(dict.fromkeys([evaders, 'scripted']))} --out {out}/eval"
+        f"--evaders {' '.join(dict.fromkeys([evaders, 'scripted']))} --preset {config.preset} "
+        f"--backend {config.backend} --out {out}/eval"
     )
-    print(f"  pe-mjx view --pursuers {pursuers} --evaders {evaders}")
+    print(
+        f"  pe-mjx view --preset {config.preset} --backend {config.backend} "
+        f"--pursuers {pursuers} --evaders {evaders}"
+    )
     print(f"  pe-mjx plot {out}")
     print(f"  tensorboard --logdir {out}/tb   (pip install 'pe-mjx[tensorboard]')")
 

@@ -62,7 +62,9 @@ def _ends(points: list[tuple[int, float]], window: int) -> dict[str, float]:
 
 
 def summarize(run: Path, reference: dict[str, object], window: int) -> dict:
-    config = json.loads((run / "config.json").read_text())["experiment"]
+    saved = json.loads((run / "config.json").read_text())
+    # Runs made before the experiment config (format 1) saved a flat "train_config".
+    config = saved.get("experiment") or {"train_config": saved.get("train_config", {})}
     flat = _flat(config)
     changed = {k: v for k, v in flat.items() if reference.get(k) != v}
     scalars = read_scalars(run)
@@ -88,9 +90,7 @@ def markdown(rows: list[dict], ignore: tuple[str, ...] = ()) -> str:
         length = c.get("eval/evader_vs_scripted/length")
         travel = c.get("eval/evader_vs_scripted/evader_distance")
         kl = c.get("loss/evader/approx_kl")
-        changed = ", ".join(
-            f"{k}={v}" for k, v in row["changed"].items() if k not in ignore
-        )
+        changed = ", ".join(f"{k}={v}" for k, v in row["changed"].items() if k not in ignore)
         steps = f"{length['last_step']:,}" if length else "-"
 
         def span(x, fmt="{:.1f}"):
