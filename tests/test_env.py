@@ -145,25 +145,6 @@ def test_bad_backend_and_reset_to_shapes(get_compiled):
         c.reset_to(jnp.zeros((3, 3)), jnp.zeros((1, 3)), jnp.zeros((1, 3)))
 
 
-def test_action_table_is_paper_eq2():
-    cfg = get_preset("20-5-8")
-    for team in TEAMS:
-        t = cfg.team(team)
-        v, w = pe_env.action_table(t)
-        speeds = np.linspace(0, t.max_speed, t.num_speeds)
-        rates = np.linspace(-t.max_turn_rate, t.max_turn_rate, t.num_turn_rates)
-        for n_v in range(t.num_speeds):
-            for n_w in range(t.num_turn_rates):
-                i = n_v * t.num_turn_rates + n_w
-                assert v[i] == pytest.approx(speeds[n_v]) and w[i] == pytest.approx(rates[n_w])
-    v, w = pe_env.action_table(cfg.pursuer)
-    assert (v[P_STOP], w[P_STOP]) == (0, pytest.approx(0, abs=1e-7))
-    assert (v[P_FULL], w[P_FULL]) == (pytest.approx(0.2), pytest.approx(0, abs=1e-7))
-    v, w = pe_env.action_table(cfg.evader)
-    assert (v[E_STOP], w[E_STOP]) == (0, pytest.approx(0, abs=1e-7))
-    assert (v[E_FULL], w[E_FULL]) == (pytest.approx(0.4), pytest.approx(0, abs=1e-7))
-
-
 # ------------------------------------------------------------------------ rules (SPEC 2.3)
 
 FAR_OBSTACLE = [[0.0, -1.4, 0.3]]

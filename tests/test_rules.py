@@ -34,6 +34,7 @@ from pe_mjx.env import (
     action_table,
     wrap_angle,
 )
+from pe_mjx.stages.geometry import per_agent
 
 PAPER_PRESETS = ("16-4-4", "20-5-8", "24-6-12")
 BACKENDS = ("kinematic", "mjx")
@@ -44,7 +45,7 @@ B_DRIVE = 16  # driven for T_PLAY steps: a pursuer crosses the 5 m radius in 125
 
 def overlapping(env: PursuitEvasionEnv, pos: jax.Array, obstacles: jax.Array) -> jax.Array:
     """bool [N]: the agent touches the wall or an obstacle (SPEC 2.3, events 1 and 2)."""
-    r = jnp.asarray(env._radius)
+    r = jnp.asarray(per_agent(env.config, "radius"))
     wall = jnp.linalg.norm(pos, axis=-1) + r >= env.config.arena.radius
     gap = jnp.linalg.norm(pos[:, None, :] - obstacles[None, :, :2], axis=-1)
     gap = gap - r[:, None] - obstacles[None, :, 2]
@@ -90,7 +91,7 @@ def aimed(env: PursuitEvasionEnv, state):
     """`state` with every pursuer facing the wall (radially out) and every evader its nearest
     obstacle; also the start gaps [N] of each to what it faces."""
     w, p = state.world, env.num_pursuers
-    r = jnp.asarray(env._radius)
+    r = jnp.asarray(per_agent(env.config, "radius"))
     to_obs = w.obstacles[None, :, :2] - w.pos[:, None, :]  # [N, K, 2]
     dist = jnp.linalg.norm(to_obs, axis=-1)
     nearest = jnp.argmin(dist - w.obstacles[None, :, 2], axis=-1)
@@ -106,7 +107,7 @@ def aimed(env: PursuitEvasionEnv, state):
     world = w.replace(yaw=yaw)
     qpos = jnp.concatenate([w.pos, yaw[:, None]], axis=1).reshape(-1)
     physics = state.physics.replace(qpos=qpos)
-    return state.replace(world=world, physics=physics, obs=env._observe(world)), start_gap
+    return state.replace(world=world, physics=physics, obs=env.observe(world)), start_gap
 
 
 def make_run(preset: str):
@@ -151,7 +152,7 @@ def make_run(preset: str):
             gaps = []
             for b, e in envs.items():
                 w = stepped[b].world
-                r = jnp.asarray(e._radius)
+                r = jnp.asarray(per_agent(e.config, "radius"))
                 wall = e.config.arena.radius - jnp.linalg.norm(w.pos, axis=-1) - r
                 obs = jnp.linalg.norm(w.pos[:, :, None] - w.obstacles[:, None, :, :2], axis=-1)
                 obs = jnp.min(obs - r[:, None] - w.obstacles[:, None, :, 2], axis=-1)

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import functools
 import importlib.metadata
 import importlib.util
 import json
@@ -232,7 +233,7 @@ def mjx_before_issue_9(config):
         act.set_to_velocity(kv=act.gainprm[0] * config.physics_dt / 0.005)
     env.mj_model = spec.compile()
     env.mjx_model = mjx.put_model(env.mj_model)
-    env._mjx_data0 = mjx.make_data(env.mjx_model)
+    env.mjx_data0 = mjx.make_data(env.mjx_model)
     return env
 
 
@@ -242,18 +243,15 @@ def run_breakdown(spec: dict[str, Any]) -> dict[str, Any]:
     import jax.numpy as jnp
     import numpy as np
 
-    from pe_mjx.env import PursuitEvasionEnv, make
+    from pe_mjx.env import make
+    from pe_mjx.stages import dynamics, events, geometry, observations, rewards
 
     preset, batch, reps = spec["preset"], spec["batch"], spec["reps"]
 
-    class NoMaskEnv(PursuitEvasionEnv):
-        def _action_mask(self, team, pos, yaw, obstacles, frame=None):
-            return jnp.ones((pos.shape[0], self.num_actions(team)), dtype=bool)
-
     envs = {b: make(preset, backend=b) for b in ("kinematic", "mjx")}
     env = envs["kinematic"]
-    before = mjx_before_issue_9(env.config)
-    no_mask = NoMaskEnv(env.config, backend="kinematic")
+    config = env.config
+    before = mjx_before_issue_9(config)
     p, n = env.num_pursuers, env.num_agents
 
     # A state some steps into an episode (some agents incapacitated), for both backends.
@@ -275,44 +273,42 @@ def run_breakdown(spec: dict[str, Any]) -> dict[str, Any]:
         states = {b: steps[b](states[b], acts) for b in envs}
     acts = masked_random(key, states["kinematic"])
     w = states["kinematic"].world
-    physics_before = jax.vmap(lambda q: before._mjx_data0.replace(qpos=q))(
+    physics_before = jax.vmap(lambda q: before.mjx_data0.replace(qpos=q))(
         states["mjx"].physics.qpos
     )
     state_before = states["mjx"].replace(physics=physics_before)
     speed = jnp.where(w.active, 0.1, 0.0)
     turn = jnp.where(w.active, 0.3, 0.0)
-    geom = jax.jit(jax.vmap(env._geometry))(w.pos, w.yaw, w.obstacles)
-    events = jax.jit(jax.vmap(env._events))(w.pos, w.active, w.obstacles, geom)
-    slices = env.team_slices
-
-    def masks(pos, yaw, obstacles, g):
-        out = {}
-        for team, sl in slices.items():
-            frame = (g["origin_hx"][sl], g["origin_hy"][sl], g["obs_hx"][sl], g["obs_hy"][sl])
-            out[team] = env._action_mask(team, pos[sl], yaw[sl], obstacles, frame)
-        return out
+    geom = jax.jit(jax.vmap(geometry.geometry))(w.pos, w.yaw, w.obstacles)
+    ev = jax.jit(jax.vmap(functools.partial(events.events, config)))(geom, w.active, w.obstacles)
 
     parts = {
         "physics (kinematic)": (
-            envs["kinematic"]._integrate_kinematic,
+            functools.partial(dynamics.integrate_kinematic, config),
             (w.pos, w.yaw, speed, turn),
         ),
         "physics (mjx)": (
-            envs["mjx"]._integrate_mjx,
+            functools.partial(dynamics.integrate_mjx, config, envs["mjx"].mjx_model),
             (states["mjx"].physics, speed, turn),
         ),
         "physics (mjx, before issue 9)": (
-            before._integrate_mjx,
+            functools.partial(dynamics.integrate_mjx, before.config, before.mjx_model),
             (physics_before, speed, turn),
         ),
-        "geometry (shared offsets, distances)": (env._geometry, (w.pos, w.yaw, w.obstacles)),
-        "events": (env._events, (w.pos, w.active, w.obstacles, geom)),
+        "geometry (shared offsets, distances)": (geometry.geometry, (w.pos, w.yaw, w.obstacles)),
+        "events": (functools.partial(events.events, config), (geom, w.active, w.obstacles)),
         "rewards": (
-            env._reward_terms,
-            (w.pos, w.active, events["active"], events["capture_pairs"], w.obstacles, geom),
+            functools.partial(rewards.reward_terms, config),
+            (geom, w.pos, w.pos, w.active, ev.active, ev.capture_pairs, w.obstacles),
         ),
-        "observations (without masks)": (no_mask._observe, (w, geom)),
-        "action masks": (masks, (w.pos, w.yaw, w.obstacles, geom)),
+        "observations (without masks)": (
+            functools.partial(observations.entity_observations, config),
+            (w, geom),
+        ),
+        "action masks": (
+            functools.partial(observations.action_masks, config, env.mask_tables),
+            (w, geom),
+        ),
         "full step (kinematic)": (envs["kinematic"].step, (states["kinematic"], acts)),
         "full step (mjx)": (envs["mjx"].step, (states["mjx"], acts)),
         "full step (mjx, before issue 9)": (before.step, (state_before, acts)),

@@ -370,16 +370,16 @@ def test_a_run_saved_by_a_version_with_another_arena_state_resumes_its_learners(
     """An env metric added since the save changes the arena state's structure: the learners,
     the RNG and the counters still come back exactly, the arenas are drawn afresh, with a
     warning."""
-    from pe_mjx.env import PursuitEvasionEnv
     from pe_mjx.ppo.train import Trainer
+    from pe_mjx.stages import metrics
 
     root, straight, _ = runs
-    plain = PursuitEvasionEnv._metrics
+    plain = metrics.step_metrics
 
-    def more_metrics(self, *args, **kwargs):
-        return {**plain(self, *args, **kwargs), "new_metric": jnp.zeros(())}
+    def more_metrics(*args, **kwargs):
+        return {**plain(*args, **kwargs), "new_metric": jnp.zeros(())}
 
-    monkeypatch.setattr(PursuitEvasionEnv, "_metrics", more_metrics)
+    monkeypatch.setattr(metrics, "step_metrics", more_metrics)
     trainer = Trainer(CONFIG)
     state = checkpoint.restore_train_state(root / "straight", trainer)
     assert "another pe-mjx version" in capsys.readouterr().err
