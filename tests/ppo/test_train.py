@@ -13,7 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from pe_mjx.episodes import play_episodes
 from pe_mjx.experiment import default_config
+from pe_mjx.policies import make_policy
 from pe_mjx.ppo.train import Trainer
 from tests.tiny_config import tiny
 
@@ -109,6 +111,49 @@ def test_pursuers_learn_to_capture_the_scripted_evader():
     assert ret_after > ret_before
     assert np.isfinite(float(metrics["reward/pursuer/total"]))
     assert "reward/evader/total" in metrics
+
+
+def test_evaders_learn_to_outlast_random_evaders():
+    """Evaders trained briefly against the scripted pursuers survive far longer than random ones.
+
+    The default training setup of the evaders (step size 3e-3, the flee shaping of
+    `training_env`), 4 scripted pursuers and 1 evader with 2 obstacles in a 4 m arena (4-1-2's
+    counts, room to run), kinematic backend, 128 evaluation episodes with fixed seeds. Measured
+    when written (seed 0): random evaders are caught after 55.5 steps on average, the untrained
+    network after 55.4; after 20 / 40 / 60 / 80 / 100 iterations 46 / 51 / 98 / 209 / 304 steps
+    (success 1.0 -> 0.77). Before the diagnosis of issue 10 (step size 3e-4, no flee shaping)
+    the evaders did not improve at all. The seed is fixed, as in the pursuers' test.
+    """
+    config = default_config("4-1-2").override(
+        {
+            "backend": "kinematic",
+            "pursuer.policy": "scripted",
+            "env.arena.radius": 4.0,
+            "ppo.num_envs": 32,
+            "ppo.unroll_length": 32,
+            "env_steps": 32 * 32 * 100,
+            "eval_envs": 128,
+            "eval_every": 0,
+        }
+    )
+    trainer = Trainer(config)
+    key = jax.random.key(123)
+    keys = jax.random.split(key, config.eval_envs)
+    random_pair = {
+        "pursuer": trainer.scripted["pursuer"],
+        "evader": make_policy("random", config.env, "evader"),
+    }
+    random_length = float(
+        np.mean(play_episodes(trainer.eval_env, random_pair, keys).metrics["episode/length"])
+    )
+    state = trainer.init()
+    step = jax.jit(trainer.iteration, donate_argnums=0)
+    for _ in range(config.num_iterations):
+        state, _ = step(state)
+    trained = jax.jit(trainer.evaluate)(state, key)
+    length = float(trained["eval/evader_vs_scripted/length"])
+    print(f"time to capture: random evaders {random_length:.1f}, trained {length:.1f} steps")
+    assert length >= 2 * random_length
 
 
 def test_two_devices_match_one_device(tmp_path):
