@@ -58,7 +58,7 @@ def test_scene_writes_loadable_arena(tmp_path, get_compiled):
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (("scene", "--preset", "nope"), "unknown preset 'nope'"),
+        (("scene", "--preset", "nope"), "invalid choice 'nope'"),
         (("scene", "--no-such-flag"), "--no-such-flag"),
         (("scene", "--seed", "abc"), "abc"),
         (("scene", "-o", "missing_dir/arena.xml"), "does not exist"),

@@ -68,13 +68,13 @@ def bad_inputs(tmp_path_factory, trajectory_file):
 def bad_view_arguments(bad) -> list[tuple[tuple[str, ...], str]]:
     """(arguments of `pe-mjx view`, what its one error line must say)."""
     return [
-        (("--preset", "nope"), "unknown preset 'nope'"),
+        (("--preset", "nope"), "invalid choice 'nope'"),
         (("--replay", "/no/such/file.npz"), "no such file"),
         (("--replay", str(bad)), "not a file"),
         (("--replay", str(bad / "huge.npz")), "huge.npz: poses declares 3,600,000,000,000 bytes"),
         (("--arenas", "0"), "--arenas must be in 1..64, got 0"),
         (("--arenas", "65"), "--arenas must be in 1..64, got 65"),
-        (("--backend", "warp"), "unknown backend"),
+        (("--backend", "warp"), "invalid choice 'warp'"),
         (("--port", "-1"), "--port must be in 0..65535, got -1"),
         (("--port", "70000"), "--port must be in 0..65535, got 70000"),
         (("--host", "no-such-host.invalid"), "--host 'no-such-host.invalid' does not resolve"),
