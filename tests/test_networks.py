@@ -136,7 +136,6 @@ def _permute(obs, seed):
         ({"num_heads": 0}, "num_heads"),
         ({"hidden": 0}, "hidden"),
         ({"nearest_k": 0}, "nearest_k"),
-        ({"encoder": "mlp"}, "mlp_counts"),
         ({"encoder": "mlp", "mlp_counts": (1, 2)}, "mlp_counts"),
         ({"mlp_counts": (1, -2, 3)}, "mlp_counts"),
         ({"mix_queries": "some"}, "mix_queries"),
@@ -145,6 +144,15 @@ def _permute(obs, seed):
 def test_config_validation_names_the_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
         NetworkConfig(**kwargs)
+
+
+def test_an_mlp_needs_its_training_counts():
+    """The experiment config leaves mlp_counts to the scene (`for_scene`); building an MLP
+    network without them fails with the field named."""
+    with pytest.raises(ValueError, match="mlp_counts"):
+        nets.make_network(NetworkConfig(encoder="mlp"), 39)
+    env = pe_mjx.get_preset("20-5-8")
+    assert NetworkConfig(encoder="mlp").for_scene(env, "pursuer").mlp_counts == (19, 5, 8)
 
 
 def test_config_round_trip():
