@@ -153,20 +153,24 @@ def train_defaults(argv: list[str]) -> TrainArgs:
     return TrainArgs(experiment=base)
 
 
-def _check_opponents(config: ExperimentConfig) -> None:
-    """A team played frozen from a run: its checkpoint is checked before anything is written."""
+def _check_run_learned(flag: str, spec: str, team: str) -> None:
+    """The run `spec` (given as `flag`) has a readable checkpoint that learned `team`."""
     from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
 
+    try:
+        meta = read_meta(spec)
+    except CheckpointError as err:
+        _fail(f"{flag}: {err}")
+    if team not in meta["network_configs"]:
+        _fail(f"{flag}: run {spec} did not learn a {team} policy")
+
+
+def _check_opponents(config: ExperimentConfig) -> None:
+    """A team played frozen from a run: its checkpoint is checked before anything is written."""
     for team in ("pursuer", "evader"):
         spec = config.team(team).policy
-        if spec == "learn" or spec in BUILTIN_POLICIES:
-            continue
-        try:
-            meta = read_meta(spec)
-        except CheckpointError as err:
-            _fail(f"--{team}.policy: {err}")
-        if team not in meta["network_configs"]:
-            _fail(f"--{team}.policy: run {spec} did not learn a {team} policy")
+        if spec != "learn" and spec not in BUILTIN_POLICIES:
+            _check_run_learned(f"--{team}.policy", spec, team)
 
 
 def run_train(args: TrainArgs) -> None:
@@ -450,7 +454,6 @@ class EvaluateArgs:
 
 def _check_policy_specs(flag: str, specs: tuple[str, ...], team: str) -> None:
     """Each spec is built in or a readable run that learned `team`: checked before any compile."""
-    from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
     from pe_mjx.shipped import resolve_run
 
     if not specs:
@@ -460,12 +463,7 @@ def _check_policy_specs(flag: str, specs: tuple[str, ...], team: str) -> None:
             continue
         if not spec or not resolve_run(spec).is_dir():
             _fail(f"{flag}: {spec!r} is not scripted, random, a shipped policy or a run directory")
-        try:
-            meta = read_meta(spec)
-        except CheckpointError as err:
-            _fail(f"{flag}: {err}")
-        if team not in meta["network_configs"]:
-            _fail(f"{flag}: run {spec} did not learn a {team} policy")
+        _check_run_learned(flag, spec, team)
 
 
 def run_evaluate(args: EvaluateArgs) -> None:

@@ -38,6 +38,8 @@ MASK_KEYS = {
     "obstacles": "obstacle_mask",
 }
 """The validity mask of each entity block."""
+OBSERVATION_KEYS = (*ENTITY_KEYS, *MASK_KEYS.values(), "action_mask")
+"""Every key of a team's observation dict, in their canonical (flattening) order."""
 
 # Incapacitation causes (`World.cause`); 0 means still active.
 ACTIVE, WALL, OBSTACLE, CAPTURE, TEAMMATE, OPPONENT = range(6)
@@ -78,6 +80,7 @@ __all__ = [
     "FEATURES",
     "MASK_KEYS",
     "NUM_CAUSES",
+    "OBSERVATION_KEYS",
     "OBSTACLE",
     "OBSTACLE_FEATURES",
     "OPPONENT",

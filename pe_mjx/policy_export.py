@@ -22,20 +22,11 @@ from pe_mjx.agents import dummy_obs, normalize_obs
 from pe_mjx.config import EnvConfig
 from pe_mjx.env import action_table
 from pe_mjx.export_loader import FORMAT, META, PROGRAM, VERSION
-from pe_mjx.names import other_team
+from pe_mjx.names import OBSERVATION_KEYS, other_team
 from pe_mjx.networks import greedy_actions
 from pe_mjx.ppo.checkpoint import CheckpointError, restore_policy_params
 
-INPUTS = (
-    "own",
-    "teammates",
-    "opponents",
-    "obstacles",
-    "teammate_mask",
-    "opponent_mask",
-    "obstacle_mask",
-    "action_mask",
-)
+INPUTS = OBSERVATION_KEYS
 # Lowered for both, so that one file runs on a robot computer's CPU or NVIDIA GPU.
 PLATFORMS = ("cpu", "cuda")
 

@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from pe_mjx import env as pe_env
 from pe_mjx.config import PRESETS, get_preset
 from pe_mjx.env import CAPTURE, OBSTACLE, OPPONENT, TEAMMATE, WALL, AutoResetWrapper
+from pe_mjx.names import OBSERVATION_KEYS
 from tests.conftest import (
     E_FULL,
     E_STOP,
@@ -35,16 +36,7 @@ BACKENDS = ("kinematic", "mjx")
 TEAMS = ("pursuer", "evader")
 PURSUER_TERMS = {"wall", "obstacle", "teammate", "pursuit", "capture", "opponent"}
 EVADER_TERMS = {"wall", "obstacle", "teammate", "opponent", "alive", "flee"}
-OBS_KEYS = {
-    "own",
-    "teammates",
-    "opponents",
-    "obstacles",
-    "teammate_mask",
-    "opponent_mask",
-    "obstacle_mask",
-    "action_mask",
-}
+OBS_KEYS = set(OBSERVATION_KEYS)
 
 
 def np_obs(state, team):

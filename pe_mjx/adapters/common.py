@@ -7,20 +7,13 @@ import math
 import jax
 import jax.numpy as jnp
 
+from pe_mjx import names
 from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.names import TEAMS
 
 # The order in which a team's observation dict is flattened; `action_mask` is never part of the
 # vector (each adapter hands it over on its own). Keys the env may add later follow, sorted.
-OBSERVATION_KEYS = (
-    "own",
-    "teammates",
-    "opponents",
-    "obstacles",
-    "teammate_mask",
-    "opponent_mask",
-    "obstacle_mask",
-)
+OBSERVATION_KEYS = tuple(k for k in names.OBSERVATION_KEYS if k != "action_mask")
 
 
 def agent_names(env: PursuitEvasionEnv) -> dict[str, list[str]]:
