@@ -414,15 +414,17 @@ def run_view(args: ViewArgs) -> None:
         record_dir=args.record_dir,
         policy_roots=args.policy_roots,
     )
-    viewer = start_viewer(options, replay=traj, wait=False)
-    print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)
-    try:
+    viewer = None
+    try:  # a Ctrl-C at any point from here on stops the server it started
+        viewer = start_viewer(options, replay=traj, wait=False)
+        print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
         pass
     finally:
-        viewer.stop()
+        if viewer is not None:
+            viewer.stop()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -285,8 +285,10 @@ class Viewer:
             raise RuntimeError("the viewer failed to start: " + "; ".join(self.errors))
 
     def stop(self) -> None:
+        """Stops the loop and the server. The loop thread is a daemon: one busy in a long command
+        (building a large scene) is left to end with the process after a short wait."""
         self._stop.set()
-        self._thread.join(timeout=30)
+        self._thread.join(timeout=5)
         self.server.stop()
 
     def num_clients(self) -> int:

@@ -28,6 +28,7 @@ def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 def _env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
+    env["PYTHONFAULTHANDLER"] = "1"
     return env
 
 
@@ -135,7 +136,13 @@ def test_non_local_host_prints_a_warning(trajectory_file):
         text = "".join(lines)
         assert "pe-mjx view: warning: --host 0.0.0.0 serves the viewer to other machines" in text
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=30) in (0, 130)  # 130: the Ctrl-C came before the wait loop
+        try:  # communicate drains the output, so a full pipe cannot block the child's exit
+            rest, _ = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGABRT)  # PYTHONFAULTHANDLER: every thread's stack
+            rest, _ = proc.communicate(timeout=30)
+            raise AssertionError(f"no exit 60 s after Ctrl-C; its threads:\n{rest}") from None
+        assert proc.returncode in (0, 130), rest  # 130: the Ctrl-C came before the wait loop
     finally:
         if proc.poll() is None:
             proc.kill()
