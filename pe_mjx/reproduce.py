@@ -1,14 +1,18 @@
-"""Reproduce the paper's Tables II-VI: train co-evolutions, cross-confront, write docs/results.md.
+"""Reproduce the paper's Tables II-VI: train co-evolutions, cross-confront, write the tables.
 
     pe-mjx reproduce --fraction 0.01           # a quick look: 1% of 10M env steps
     pe-mjx reproduce                           # the full 10 million per run
     pe-mjx reproduce --skip-train --runs runs  # evaluate existing runs only
+    pe-mjx reproduce --skip-train --runs assets/policies --tables III V VI \\
+        --transfer-evaders pursuers            # the shipped 20-5-8 policies (docs/results.md)
 
 Resumable: training resumes every run from its last checkpoint, and a table whose results.json
 exists is not evaluated again (delete it to redo it). Tables II-IV: at each scale, every pursuit
 policy against every evasion policy of another co-evolution at that scale. Tables V and VI: the
 pursuit policies trained at 20-5-8 against the evasion policies trained at 16-4-4 and 24-6-12,
-in those scenes (generalization). The paper's numbers stand beside ours.
+in those scenes (generalization); with `--transfer-evaders pursuers` they meet the evasion
+policies trained at 20-5-8 instead (both teams transferred; the paper's numbers beside them are
+then for a different opponent, and the report says so). The paper's numbers stand beside ours.
 """
 
 from __future__ import annotations
@@ -34,8 +38,8 @@ class ReproduceArgs:
     """Where the co-evolution runs live (train/launch.py's layout: <encoder>-<preset>)."""
     out: Path = Path("results/paper")
     """Per-table evaluation outputs."""
-    docs: Path = Path("docs/results.md")
-    """The report with our tables beside the paper's."""
+    docs: Path = Path("docs/paper_tables.md")
+    """The report with our tables beside the paper's (docs/results.md quotes and discusses it)."""
     fraction: float = 1.0
     """Training budget as a fraction of the paper's 10 million env steps per run."""
     skip_train: bool = False
@@ -50,6 +54,15 @@ class ReproduceArgs:
     """Env backend for training and evaluation."""
     seed: int = 0
     """Seed of the evaluation trials."""
+    transfer_evaders: Literal["paper", "pursuers"] = "paper"
+    """Tables V and VI: evaders trained at the scene's scale (the paper) or at the pursuers'
+    scale, 20-5-8 (when the 16-4-4 and 24-6-12 co-evolutions have not been trained)."""
+
+
+def table_scales(table: str, transfer_evaders: str = "paper") -> tuple[str, str, str]:
+    """(scene, pursuers' training scale, evaders' training scale) of one table."""
+    scene, p_scale, e_scale = TABLES[table]
+    return scene, p_scale, p_scale if transfer_evaders == "pursuers" else e_scale
 
 
 def _train(args: ReproduceArgs) -> None:
@@ -57,7 +70,7 @@ def _train(args: ReproduceArgs) -> None:
     from pe_mjx.ppo.run import train
 
     budget = max(1, int(ENV_STEPS * args.fraction))
-    scales = {scale for table in args.tables for scale in TABLES[table][1:]}
+    scales = {s for t in args.tables for s in table_scales(t, args.transfer_evaders)[1:]}
     for name, config in paper_runs(budget, args.backend).items():
         if config.pursuer.network.encoder not in args.encoders or config.preset not in scales:
             continue  # only the co-evolutions that the chosen tables use
@@ -75,7 +88,7 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
 
     done = {}
     for table in args.tables:
-        scene, p_scale, e_scale = TABLES[table]
+        scene, p_scale, e_scale = table_scales(table, args.transfer_evaders)
         out = args.out / f"table-{table}"
         if (out / "results.json").exists():
             done[table] = json.loads((out / "results.json").read_text())
@@ -122,7 +135,14 @@ def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
         "",
     ]
     for table, data in done.items():
-        scene, p_scale, e_scale = TABLES[table]
+        scene, p_scale, e_scale = table_scales(table, args.transfer_evaders)
+        if e_scale != TABLES[table][2]:
+            lines += [
+                f"Table {table}: the evaders were trained at {e_scale}, not at "
+                f"{TABLES[table][2]} as in the paper; the paper's numbers beside ours are against "
+                "its evaders.",
+                "",
+            ]
         lines += [
             f"## Table {table}: scene {scene} "
             f"(pursuers trained at {p_scale}, evaders at {e_scale})",

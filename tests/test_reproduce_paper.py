@@ -54,3 +54,16 @@ def test_unknown_table_is_an_error(tmp_path):
     assert out.returncode == 2
     assert out.stderr.startswith("pe-mjx: error:") and "IX" in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
+
+
+def test_transferred_evaders_are_stated_in_the_report(tmp_path):
+    from pe_mjx.reproduce import ReproduceArgs, _report, table_scales
+
+    assert table_scales("V") == ("16-4-4", "20-5-8", "16-4-4")
+    assert table_scales("V", "pursuers") == ("16-4-4", "20-5-8", "20-5-8")
+    assert table_scales("III", "pursuers") == ("20-5-8", "20-5-8", "20-5-8")
+    args = ReproduceArgs(tables=("III", "VI"), transfer_evaders="pursuers", docs=tmp_path / "t.md")
+    report = _report(args, {"III": {"pairings": []}, "VI": {"pairings": []}})
+    assert "## Table VI: scene 24-6-12 (pursuers trained at 20-5-8, evaders at 20-5-8)" in report
+    assert "Table VI: the evaders were trained at 20-5-8, not at 24-6-12" in report
+    assert "Table III: the evaders" not in report

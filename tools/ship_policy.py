@@ -1,0 +1,67 @@
+"""Ship one checkpoint of a `pe-mjx train` run as a packaged policy (pe_mjx/assets/policies).
+
+    python tools/ship_policy.py RUN NAME [--step N]
+
+Copies the run's config.json and, of the chosen checkpoint (default: the latest), its metadata
+and policy items only: no optimiser or arena state, so the shipped policy plays
+(`pe-mjx view/evaluate --pursuers NAME`) but cannot be resumed. assets/policies/NAME links to the
+packaged copy, as for the other shipped policies. Refuses to replace an existing policy unless
+--replace is given. The model card is written by hand in assets/policies/README.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import tyro
+
+from pe_mjx.ppo import checkpoint
+from pe_mjx.shipped import policies_dir
+
+ROOT = Path(__file__).resolve().parent.parent
+KEEP = ("_CHECKPOINT_METADATA", "commit_success.txt", "meta", "policy_pursuer", "policy_evader")
+
+
+@dataclasses.dataclass(frozen=True)
+class Args:
+    run: Path
+    """The run directory."""
+    name: str
+    """The shipped policy's name (e.g. mlp-20-5-8)."""
+    step: int | None = None
+    """Checkpoint step (iteration) to ship; default the latest."""
+    replace: bool = False
+    """Replace a shipped policy of that name."""
+
+
+def ship(args: Args) -> Path:
+    meta = checkpoint.read_meta(args.run, args.step)  # validates the run and the step
+    step = meta["step"]
+    dest = policies_dir() / args.name
+    if "/" in args.name or args.name.startswith("."):
+        raise SystemExit(f"ship_policy: error: bad name {args.name!r}")
+    if dest.exists():
+        if not args.replace:
+            raise SystemExit(f"ship_policy: error: {dest} exists (--replace to replace it)")
+        shutil.rmtree(dest)
+    src = args.run / checkpoint.CHECKPOINT_DIR / str(step)
+    out = dest / checkpoint.CHECKPOINT_DIR / str(step)
+    out.mkdir(parents=True)
+    for item in KEEP:
+        if (src / item).is_dir():
+            shutil.copytree(src / item, out / item)
+        elif (src / item).exists():
+            shutil.copy2(src / item, out / item)
+    shutil.copy2(args.run / "config.json", dest / "config.json")
+    link = ROOT / "assets" / "policies" / args.name
+    if not link.is_symlink():
+        link.symlink_to(Path("../../pe_mjx/assets/policies") / args.name)
+    checkpoint.read_meta(dest)  # the shipped copy reads back
+    print(f"shipped {args.run} step {step} ({meta['env_steps']:,} env steps) as {dest}")
+    return dest
+
+
+if __name__ == "__main__":
+    ship(tyro.cli(Args))
