@@ -38,7 +38,10 @@ META_DAMAGE = {
     "missing_num_actions": lambda m: m.pop("num_actions"),
     "format_99": lambda m: m.__setitem__("format_version", 99),
     "format_string": lambda m: m.__setitem__("format_version", "2"),
-    "format_2_without_experiment": lambda m: m.__setitem__("format_version", 2),
+    "format_2_without_experiment": lambda m: (
+        m.__setitem__("format_version", 2),
+        m.pop("experiment", None),
+    ),
     "network_configs_list": lambda m: m.__setitem__("network_configs", []),
     "network_configs_empty": lambda m: m.__setitem__("network_configs", {}),
     "network_unknown_team": lambda m: m["network_configs"].__setitem__("referee", {}),

@@ -26,9 +26,9 @@ KEEP = ("_CHECKPOINT_METADATA", "commit_success.txt", "meta", "policy_pursuer", 
 
 @dataclasses.dataclass(frozen=True)
 class Args:
-    run: Path
+    run: tyro.conf.Positional[Path]
     """The run directory."""
-    name: str
+    name: tyro.conf.Positional[str]
     """The shipped policy's name (e.g. mlp-20-5-8)."""
     step: int | None = None
     """Checkpoint step (iteration) to ship; default the latest."""

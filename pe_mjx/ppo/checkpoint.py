@@ -362,6 +362,14 @@ def all_finite(tree: Any) -> bool:
     )
 
 
+def _require_train_item(run_dir: Path, step: int) -> None:
+    if not (run_dir / CHECKPOINT_DIR / str(step) / "train").is_dir():
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} holds policies only (no train state): it can be "
+            f"played and evaluated, the run cannot be resumed"
+        )
+
+
 def read_experiment(run_dir: str | Path) -> dict[str, Any]:
     """The experiment config tree (a dict) saved with the latest checkpoint of a resumable run."""
     meta = read_meta(run_dir)
@@ -370,6 +378,7 @@ def read_experiment(run_dir: str | Path) -> dict[str, Any]:
             f"{run_dir} was made by an older pe-mjx (checkpoint format {meta['format_version']}): "
             f"its policies can be played and evaluated, the run cannot be resumed"
         )
+    _require_train_item(resolve_run(run_dir), meta["step"])
     return meta["experiment"]
 
 
@@ -428,11 +437,7 @@ def restore_train_state(run_dir: str | Path, trainer: Trainer) -> TrainState:
     """
     run_dir = Path(run_dir)
     step = _latest_step(run_dir)
-    if not (run_dir / CHECKPOINT_DIR / str(step) / "train").is_dir():
-        raise CheckpointError(
-            f"checkpoint {step} in {run_dir} holds policies only (no train state): it can be "
-            f"played and evaluated, not resumed"
-        )
+    _require_train_item(run_dir, step)
     template = trainer.abstract_state()
     abstract = jax.eval_shape(keys_to_data, template)
     try:
