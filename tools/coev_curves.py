@@ -1,0 +1,125 @@
+"""Learning curves of the co-evolutions, one figure per run, from data kept in the repo.
+
+    python tools/coev_curves.py --runs runs/coev/mlp-20-5-8-s0 runs/coev/mix-20-5-8-s0 ...
+    python tools/coev_curves.py            # redraw the figures from docs/data/coev_curves.json
+
+With --runs, the evaluation curves of each run (its TensorBoard events: every `--eval-every`
+iterations each learned team plays against the scripted opponent) and the training episodes'
+success rate are written to docs/data/coev_curves.json; the figures (docs/figures/curves-RUN.png)
+are always drawn from that file, so they can be redrawn without the runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import tyro
+
+ROOT = Path(__file__).resolve().parent.parent
+# tag -> (panel, legend label, colour: blue = the learned pursuers, orange = the learned evaders)
+SERIES = {
+    "eval/pursuer_vs_scripted/success_rate": (
+        "success",
+        "learned pursuers vs scripted evaders",
+        "tab:blue",
+    ),
+    "eval/evader_vs_scripted/success_rate": (
+        "success",
+        "scripted pursuers vs learned evaders",
+        "tab:orange",
+    ),
+    "episode/success_rate": ("success", "learned vs learned (training episodes)", "tab:green"),
+    "eval/pursuer_vs_scripted/length": (
+        "length",
+        "learned pursuers vs scripted evaders",
+        "tab:blue",
+    ),
+    "eval/evader_vs_scripted/length": (
+        "length",
+        "scripted pursuers vs learned evaders",
+        "tab:orange",
+    ),
+}
+PANELS = {
+    "success": "pursuer success rate (evaders captured / evaders)",
+    "length": "episode length (steps; longer = evaders last longer)",
+}
+EVERY = 10  # keep every 10th point of the per-iteration training series (the file stays small)
+
+
+@dataclasses.dataclass(frozen=True)
+class Args:
+    runs: tuple[Path, ...] = ()
+    """Run directories to read (default: redraw from the data file)."""
+    data: Path = ROOT / "docs" / "data" / "coev_curves.json"
+    figures: Path = ROOT / "docs" / "figures"
+
+
+def collect(runs: tuple[Path, ...]) -> dict[str, dict[str, list[list[float]]]]:
+    from pe_mjx.plots import read_scalars
+
+    out = {}
+    for run in runs:
+        scalars = read_scalars(run)
+        if not scalars:
+            raise SystemExit(f"coev_curves: error: {run} holds no TensorBoard events")
+        series = {}
+        for tag in SERIES:
+            points = sorted(dict(scalars.get(tag, [])).items())
+            if not tag.startswith("eval/"):
+                points = points[::EVERY]
+            series[tag] = [[int(s), float(v)] for s, v in points]
+        out[run.name] = series
+    return out
+
+
+def draw(data: dict, figures: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figures.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, series in data.items():
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+        for ax, (panel, ylabel) in zip(axes, PANELS.items(), strict=True):
+            for tag, (where, label, color) in SERIES.items():
+                points = series.get(tag, [])
+                if where != panel or not points:
+                    continue
+                steps, values = zip(*points, strict=True)
+                marker = "o" if tag.startswith("eval/") else None
+                ax.plot(steps, values, marker=marker, markersize=3, label=label, color=color)
+            ax.set_xlabel("env steps")
+            ax.set_ylabel(ylabel)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+            if panel == "success":
+                ax.set_ylim(0, 1.02)
+        fig.suptitle(f"{name}: each learned team against the scripted opponent")
+        fig.tight_layout(rect=(0, 0, 1, 0.95))
+        path = figures / f"curves-{name}.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def main(args: Args) -> None:
+    if args.runs:
+        data = json.loads(args.data.read_text()) if args.data.exists() else {}
+        data.update(collect(args.runs))
+        args.data.parent.mkdir(parents=True, exist_ok=True)
+        args.data.write_text(json.dumps(data, indent=1) + "\n")
+        print(f"wrote {args.data}")
+    elif not args.data.exists():
+        raise SystemExit(f"coev_curves: error: {args.data} does not exist; give --runs")
+    for path in draw(json.loads(args.data.read_text()), args.figures):
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
