@@ -3,6 +3,7 @@ and resumes without redoing anything."""
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -67,3 +68,25 @@ def test_transferred_evaders_are_stated_in_the_report(tmp_path):
     assert "## Table VI: scene 24-6-12 (pursuers trained at 20-5-8, evaders at 20-5-8)" in report
     assert "Table VI: the evaders were trained at 20-5-8, not at 24-6-12" in report
     assert "Table III: the evaders" not in report
+
+    # A baseline row (the paper has no such cell) shows "-" beside ours; a cross row the paper's.
+    summary = {"success_rate": 0.5, "travel_distance": 9.0, "pursuit_cost": 5.0}
+    summary["per_evader_cost"] = 1.25
+
+    def pairing(evader, pursuer, e_label, p_label):
+        return {
+            "evader": {"source": evader, "label": e_label},
+            "pursuer": {"source": pursuer, "label": p_label},
+            "summary": summary,
+        }
+
+    data = {
+        "pairings": [
+            pairing("scripted", "assets/policies/mix-20-5-8", "E_scripted", "P_MIX(20,5,8)"),
+            pairing("p/mean-20-5-8", "p/mix-20-5-8", "E_MEAN(20,5,8)", "P_MIX(20,5,8)"),
+        ]
+    }
+    report = _report(dataclasses.replace(args, baselines=("III",)), {"III": data})
+    rows = [line for line in report.splitlines() if line.startswith("| E_")]
+    assert rows[0] == "| E_scripted | P_MIX(20,5,8) | 0.500 / - | 9.00 / - | 5.00 / - | 1.250 / - |"
+    assert rows[1].split("|")[3].strip() == "0.500 / 0.932"
