@@ -23,7 +23,7 @@ import json
 from pathlib import Path
 from typing import Literal
 
-from pe_mjx.names import ENCODERS
+from pe_mjx.names import ENCODERS, TEAMS
 from pe_mjx.paper import ENV_STEPS, PAPER, TABLES, paper_runs
 
 TableName = Literal[tuple(TABLES)]  # type: ignore[valid-type]
@@ -130,35 +130,60 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
     return done
 
 
+def _budgets(done: dict[str, dict]) -> list[str]:
+    """One line per learned policy in the tables: its training env steps."""
+    from pe_mjx.ppo import checkpoint
+
+    sources = sorted(
+        {p[team]["source"] for d in done.values() for p in d["pairings"] for team in TEAMS}
+        - {"scripted", "random"}
+    )
+    lines = []
+    for source in sources:
+        try:
+            steps = f"{checkpoint.read_meta(source)['env_steps']:,} env steps"
+        except checkpoint.CheckpointError:
+            steps = "not found here"
+        lines.append(f"- `{source}`: {steps}")
+    return lines
+
+
 def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
+    budget = (
+        "the policies as found (their training budgets are listed below)"
+        if args.skip_train
+        else f"{args.fraction:g} x 10M env steps per co-evolution"
+    )
     lines = [
         "# Paper reproduction: Tables II-VI",
         "",
-        f"Written by `pe-mjx reproduce` on {datetime.date.today()}; training budget "
-        f"{args.fraction:g} x 10M env steps per co-evolution, {args.trials} trials per pairing, "
-        f"backend {args.backend}. Each cell: ours / paper. "
+        f"Written by `pe-mjx reproduce` on {datetime.date.today()}; training budget: {budget}; "
+        f"{args.trials} trials per pairing, backend {args.backend}. Each cell: ours / paper. "
         "Per-evader cost is mean(m')/mean(n').",
         "",
     ]
+    if args.skip_train:
+        lines += [*_budgets(done), ""]
     for table, data in done.items():
         scene, p_scale, e_scale = table_scales(table, args.transfer_evaders)
-        if e_scale != TABLES[table][2]:
-            lines += [
-                f"Table {table}: the evaders were trained at {e_scale}, not at "
-                f"{TABLES[table][2]} as in the paper; the paper's numbers beside ours are against "
-                "its evaders.",
-                "",
-            ]
-        if table in args.baselines:
-            lines += [
-                f"Table {table} also plays each co-evolution against itself and the scripted "
-                'teams ("-": the paper has no such cell).',
-                "",
-            ]
         lines += [
             f"## Table {table}: scene {scene} "
             f"(pursuers trained at {p_scale}, evaders at {e_scale})",
             "",
+        ]
+        if e_scale != TABLES[table][2]:
+            lines += [
+                f"The evaders were trained at {e_scale}, not at {TABLES[table][2]} as in the "
+                "paper; the paper's numbers beside ours are against its evaders.",
+                "",
+            ]
+        if table in args.baselines:
+            lines += [
+                "Also each co-evolution against itself and the scripted teams "
+                '("-": the paper has no such cell).',
+                "",
+            ]
+        lines += [
             "| Evader | Pursuer | Success rate | Travel distance | Pursuit cost "
             "| Per-evader cost |",
             "|---|---|---|---|---|---|",
