@@ -11,6 +11,7 @@ import pytest
 import pe_mjx
 from pe_mjx.config import TEAMS
 from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
+from pe_mjx.shipped import shipped_names
 
 SHIPPED = Path(__file__).resolve().parents[1] / "assets" / "policies" / "mix-20-5-8"
 
@@ -59,3 +60,25 @@ def test_shipped_policy_cannot_be_resumed():
 
     with pytest.raises(CheckpointError, match="cannot be resumed"):
         saved_config(SHIPPED)
+
+
+@pytest.fixture(scope="module")
+def env_20_5_8():
+    return pe_mjx.make("20-5-8", backend="kinematic")
+
+
+@pytest.mark.parametrize("name", shipped_names())
+def test_every_shipped_policy_loads_by_name_and_has_a_model_card(name, env_20_5_8):
+    """Each shipped policy: valid metadata, a model card, and a valid action for every agent of
+    each team it learned, loaded by its bare name (as `pe-mjx view/evaluate --pursuers NAME`)."""
+    card = (SHIPPED.parent / "README.md").read_text()
+    assert f"`{name}`" in card
+    meta = read_meta(name)
+    assert meta["network_configs"], name
+    state = jax.jit(env_20_5_8.reset)(jax.random.key(1))
+    for team in meta["network_configs"]:
+        policy = pe_mjx.load_policy(name, team=team, env_config=env_20_5_8.config)
+        action = policy(state.obs[team], jax.random.key(2))
+        mask = state.obs[team]["action_mask"]
+        assert action.shape == mask.shape[:1]
+        assert bool(jnp.all(jnp.take_along_axis(mask, action[:, None], 1)))
