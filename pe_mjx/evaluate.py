@@ -45,6 +45,12 @@ from pe_mjx.play import PlayPolicy, resolve_policy
 TRIAL_FIELDS = ("success_rate", "travel_distance", "pursuit_cost", "evaders_incapacitated")
 TRIAL_FIELDS += ("length",)
 
+MLP_PADDED_NOTE = (
+    "\\* MLP policy run at entity counts other than its training counts: its "
+    "input is zero-padded or truncated (SPEC 3.1); it cannot generalise."
+)
+"""The footnote of a table with a starred (padded) MLP policy in it."""
+
 
 def trial_metrics(env: PursuitEvasionEnv, final) -> dict[str, np.ndarray]:
     """Per-trial numbers from a batched final state [B] (numpy arrays of shape [B])."""
@@ -308,11 +314,7 @@ def markdown_table(results: list[PairingResult], title: str) -> str:
         )
     notes = sorted({r.pursuer.note for r in results} | {r.evader.note for r in results} - {""})
     if "mlp-padded" in notes:
-        lines += [
-            "",
-            "\\* MLP policy run at entity counts other than its training counts: its "
-            "input is zero-padded or truncated (SPEC 3.1); it cannot generalise.",
-        ]
+        lines += ["", MLP_PADDED_NOTE]
     return "\n".join(lines) + "\n"
 
 

@@ -205,6 +205,10 @@ def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
                 + " | ".join(row)
                 + " |"
             )
+        if any(p[t].get("note") == "mlp-padded" for p in data["pairings"] for t in TEAMS):
+            from pe_mjx.evaluate import MLP_PADDED_NOTE
+
+            lines += ["", MLP_PADDED_NOTE]
         lines.append("")
     if not done:
         lines.append("No table has been evaluated yet.")
