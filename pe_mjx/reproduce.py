@@ -68,6 +68,11 @@ def table_scales(table: str, transfer_evaders: str = "paper") -> tuple[str, str,
     return scene, p_scale, p_scale if transfer_evaders == "pursuers" else e_scale
 
 
+def method_of(source: str) -> str:
+    """The method of a policy source in the runs' layout (<encoder>-<preset>...; "scripted")."""
+    return Path(source).name.split("-")[0]
+
+
 def _train(args: ReproduceArgs) -> None:
     from pe_mjx.ppo import checkpoint
     from pe_mjx.ppo.run import train
@@ -149,6 +154,8 @@ def _budgets(done: dict[str, dict]) -> list[str]:
 
 
 def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
+    from pe_mjx.evaluate import MLP_PADDED_NOTE
+
     budget = (
         "the policies as found (their training budgets are listed below)"
         if args.skip_train
@@ -189,8 +196,8 @@ def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
             "|---|---|---|---|---|---|",
         ]
         for pairing in data["pairings"]:
-            e_method = Path(pairing["evader"]["source"]).name.split("-")[0]
-            p_method = Path(pairing["pursuer"]["source"]).name.split("-")[0]
+            e_method = method_of(pairing["evader"]["source"])
+            p_method = method_of(pairing["pursuer"]["source"])
             ours = pairing["summary"]
             ref = PAPER[table].get((e_method, p_method))
             cells = [ours["success_rate"], ours["travel_distance"], ours["pursuit_cost"]]
@@ -206,8 +213,6 @@ def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
                 + " |"
             )
         if any(p[t].get("note") == "mlp-padded" for p in data["pairings"] for t in TEAMS):
-            from pe_mjx.evaluate import MLP_PADDED_NOTE
-
             lines += ["", MLP_PADDED_NOTE]
         lines.append("")
     if not done:

@@ -21,6 +21,7 @@ from pathlib import Path
 import tyro
 
 from pe_mjx.names import ENCODERS
+from pe_mjx.reproduce import method_of
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -31,18 +32,17 @@ class Args:
     """The reproduce output (table-II ... table-VI)."""
 
 
-def method(source: str) -> str:
-    return Path(source).name.split("-")[0]
-
-
 def summarize(results: dict) -> dict:
     by_p, by_e = defaultdict(list), defaultdict(list)
     for pairing in results["pairings"]:
-        p, e = method(pairing["pursuer"]["source"]), method(pairing["evader"]["source"])
+        p, e = method_of(pairing["pursuer"]["source"]), method_of(pairing["evader"]["source"])
         s = pairing["summary"]
-        row = {"success": s["success_rate"], "per_evader_cost": s["per_evader_cost"]}
-        row["travel"] = s["travel_distance"]
-        row["against"] = e
+        row = {
+            "success": s["success_rate"],
+            "per_evader_cost": s["per_evader_cost"],
+            "travel": s["travel_distance"],
+            "against": e,
+        }
         if p != e and p in ENCODERS and e in ENCODERS:  # the paper's cross pairings only
             by_p[p].append(row)
             by_e[e].append({**row, "against": p})
