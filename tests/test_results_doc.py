@@ -1,0 +1,47 @@
+"""docs/results.md quotes its tables from the generated reports rather than retyping them."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs"
+
+
+def _table_rows(text: str) -> list[str]:
+    return [line for line in text.splitlines() if line.startswith("| ")]
+
+
+def test_the_paper_tables_in_results_md_are_those_reproduce_wrote():
+    """Each 'Table N' heading and each ours / paper row of results.md is in paper_tables.md.
+
+    The copy in results.md is how a reader meets the tables; paper_tables.md is what
+    `pe-mjx reproduce` regenerates. A hand edit or a stale copy shows up here.
+    """
+    results = (DOCS / "results.md").read_text()
+    report = (DOCS / "paper_tables.md").read_text()
+    headings = re.findall(r"^\*\*(Table [IVX]+: .*)\*\*$", results, flags=re.M)
+    assert headings, "results.md quotes no paper table"
+    assert len(headings) == len(set(headings)), f"a table is quoted twice: {headings}"
+    for heading in headings:
+        assert f"## {heading}" in report, heading
+    report_rows = set(_table_rows(report))
+    quoted = [row for row in _table_rows(results) if re.search(r"\| [\d.]+ / [\d.-]+ \|", row)]
+    assert quoted
+    stale = [row for row in quoted if row not in report_rows]
+    assert not stale, stale
+
+
+def test_the_per_method_means_in_results_md_are_those_paper_findings_wrote():
+    import json
+
+    results = (DOCS / "results.md").read_text()
+    table = json.loads((DOCS / "data" / "paper" / "findings.json").read_text())["table-III"]
+    for method in ("mlp", "birnn", "mean", "mix"):
+        p, e = table["pursuers"][method], table["evaders"][method]
+        row = (
+            f"| {method.upper()} | {p['success']:.3f} | {p['per_evader_cost']:.3f} "
+            f"| {p['travel']:.2f} | {e['success_conceded']:.3f} | {e['travel_forced']:.2f} |"
+        )
+        assert row in results.splitlines(), row
