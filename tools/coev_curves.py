@@ -6,13 +6,17 @@
 With --runs, the evaluation curves of each run (its TensorBoard events: every `--eval-every`
 iterations each learned team plays against the scripted opponent) and the training episodes'
 success rate are written to docs/data/coev_curves.json; the figures (docs/figures/curves-RUN.png)
-are always drawn from that file, so they can be redrawn without the runs.
+are always drawn from that file, so they can be redrawn without the runs. Runs that differ only in
+their seed suffix (`mix-20-5-8-s0`, `-s1`, `-s2`) also get one figure together,
+docs/figures/curves-mix-20-5-8-seeds.png: the mean over seeds of each evaluation curve at the
+env steps every seed was evaluated at, with the range over seeds shaded.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import tyro
@@ -108,6 +112,68 @@ def draw(data: dict, figures: Path) -> list[Path]:
     return paths
 
 
+def seed_groups(data: dict) -> dict[str, list[str]]:
+    """Run names grouped by everything but their seed suffix, for groups of two or more."""
+    groups: dict[str, list[str]] = {}
+    for name in data:
+        groups.setdefault(re.sub(r"-s\d+$", "", name), []).append(name)
+    return {g: sorted(names) for g, names in groups.items() if len(names) > 1}
+
+
+def draw_seeds(data: dict, figures: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    paths = []
+    for group, names in seed_groups(data).items():
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+        for ax, (panel, ylabel) in zip(axes, PANELS.items(), strict=True):
+            for tag, (where, label, color) in SERIES.items():
+                if where != panel or not tag.startswith("eval/"):
+                    continue
+                curves = [dict(map(tuple, data[n].get(tag, []))) for n in names]
+                steps = sorted(set.intersection(*(set(c) for c in curves)))
+                if not steps:
+                    continue
+                values = np.array([[c[s] for s in steps] for c in curves])
+                ax.plot(
+                    steps,
+                    values.mean(0),
+                    marker="o",
+                    markersize=3,
+                    color=color,
+                    label=f"{label} (mean of {len(names)} seeds)",
+                )
+                ax.fill_between(
+                    steps,
+                    values.min(0),
+                    values.max(0),
+                    color=color,
+                    alpha=0.2,
+                    label=f"{label} (range over seeds)",
+                )
+            ax.set_xlabel("env steps")
+            ax.set_ylabel(ylabel)
+            ax.grid(alpha=0.3)
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=8)
+            if panel == "success":
+                ax.set_ylim(0, 1.02)
+        fig.suptitle(
+            f"{group}, seeds {', '.join(n.rsplit('-s', 1)[1] for n in names)}: "
+            "each learned team against the scripted opponent"
+        )
+        fig.tight_layout(rect=(0, 0, 1, 0.95))
+        path = figures / f"curves-{group}-seeds.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
 def main(args: Args) -> None:
     if args.runs:
         data = json.loads(args.data.read_text()) if args.data.exists() else {}
@@ -117,7 +183,8 @@ def main(args: Args) -> None:
         print(f"wrote {args.data}")
     elif not args.data.exists():
         raise SystemExit(f"coev_curves: error: {args.data} does not exist; give --runs")
-    for path in draw(json.loads(args.data.read_text()), args.figures):
+    data = json.loads(args.data.read_text())
+    for path in draw(data, args.figures) + draw_seeds(data, args.figures):
         print(f"wrote {path}")
 
 

@@ -1,0 +1,117 @@
+"""Mean and spread over seeds of the same evaluation played with each seed's policies.
+
+    python tools/seed_spread.py docs/data/coev-mix-20-5-8-seeds/s0 .../s1 .../s2 \
+        --out docs/data/coev-mix-20-5-8-seeds
+
+Each input is the output directory of one `pe-mjx evaluate` (its results.json), run with one
+seed's policies and the same pairings, trials and scene. Pairings are matched by their labels
+("P_MIX(20,5,8)" vs "E_scripted"), which the seeds share. Writes `<out>/seeds.json` and
+`<out>/seeds.md`: per pairing and metric, every seed's value (itself a mean over that
+evaluation's trials, with its 95% interval in the seed's results.md), their mean, the sample
+standard deviation over seeds and the range. The spread over seeds is the one that says how much
+a result depends on the training run; the per-trial intervals do not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import statistics
+from pathlib import Path
+
+import tyro
+
+METRICS = {
+    "success_rate": ("success", 3),
+    "travel_distance": ("pursuer travel m", 2),
+    "pursuit_cost": ("pursuit cost", 2),
+    "per_evader_cost": ("per-evader cost", 3),
+    "length": ("time to capture (steps)", 0),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Args:
+    evaluations: tyro.conf.Positional[tuple[Path, ...]]
+    """One `pe-mjx evaluate` output directory per seed, in seed order."""
+    out: Path
+    """Where seeds.json and seeds.md go."""
+    title: str = "Mean and spread over seeds"
+
+
+def _read(directory: Path) -> dict[tuple[str, str], dict]:
+    path = directory / "results.json"
+    if not path.is_file():
+        raise SystemExit(f"seed_spread: error: {path} does not exist (run `pe-mjx evaluate` first)")
+    if path.stat().st_size > 64 * 2**20:
+        raise SystemExit(f"seed_spread: error: {path} is over 64 MiB; not a results.json")
+    try:
+        pairings = json.loads(path.read_text())["pairings"]
+        return {(p["pursuer"]["label"], p["evader"]["label"]): p["summary"] for p in pairings}
+    except (ValueError, KeyError, TypeError) as e:
+        raise SystemExit(f"seed_spread: error: {path} is not a pe-mjx results.json ({e})") from e
+
+
+def spread(evaluations: list[dict[tuple[str, str], dict]]) -> list[dict]:
+    keys = list(evaluations[0])
+    for i, ev in enumerate(evaluations[1:], 1):
+        if set(ev) != set(keys):
+            raise SystemExit(
+                f"seed_spread: error: evaluation {i} plays other pairings than evaluation 0: "
+                f"{sorted(set(ev) ^ set(keys))}"
+            )
+    rows = []
+    for pursuer, evader in keys:
+        row = {"pursuer": pursuer, "evader": evader, "seeds": len(evaluations)}
+        for metric in METRICS:
+            values = [ev[(pursuer, evader)][metric] for ev in evaluations]
+            row[metric] = {
+                "values": values,
+                "mean": statistics.fmean(values),
+                "std": statistics.stdev(values) if len(values) > 1 else 0.0,
+                "min": min(values),
+                "max": max(values),
+            }
+        rows.append(row)
+    return rows
+
+
+def markdown(rows: list[dict], title: str, sources: list[str]) -> str:
+    lines = [
+        f"# {title}",
+        "",
+        "Written by `python tools/seed_spread.py` from "
+        + ", ".join(f"`{s}`" for s in sources)
+        + ". Each cell: mean over seeds ± sample standard deviation over seeds [lowest, "
+        "highest seed].",
+        "",
+        "| Evader | Pursuer | " + " | ".join(label for label, _ in METRICS.values()) + " |",
+        "|---|---|" + "---|" * len(METRICS),
+    ]
+    for row in rows:
+        cells = []
+        for metric, (_, digits) in METRICS.items():
+            m = row[metric]
+            cells.append(
+                f"{m['mean']:.{digits}f} ± {m['std']:.{digits}f} "
+                f"[{m['min']:.{digits}f}, {m['max']:.{digits}f}]"
+            )
+        lines.append(f"| {row['evader']} | {row['pursuer']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(args: Args) -> None:
+    if len(args.evaluations) < 2:
+        raise SystemExit("seed_spread: error: give at least two evaluations (one per seed)")
+    rows = spread([_read(d) for d in args.evaluations])
+    args.out.mkdir(parents=True, exist_ok=True)
+    sources = [str(d) for d in args.evaluations]
+    (args.out / "seeds.json").write_text(
+        json.dumps({"evaluations": sources, "pairings": rows}, indent=1) + "\n"
+    )
+    (args.out / "seeds.md").write_text(markdown(rows, args.title, sources))
+    print(f"wrote {args.out / 'seeds.json'} and {args.out / 'seeds.md'}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
