@@ -7,6 +7,11 @@ and policy items only: no optimiser or arena state, so the shipped policy plays
 (`pe-mjx view/evaluate --pursuers NAME`) but cannot be resumed. assets/policies/NAME links to the
 packaged copy, as for the other shipped policies. Refuses to replace an existing policy unless
 --replace is given. The model card is written by hand in assets/policies/README.md.
+
+    python tools/ship_policy.py RUN NAME --dest train/seeds
+
+writes the same policy-only copy to DEST/NAME instead, outside the package (no link): for
+policies the repository keeps so that its evaluations can be rerun, without installing them.
 """
 
 from __future__ import annotations
@@ -34,12 +39,14 @@ class Args:
     """Checkpoint step (iteration) to ship; default the latest."""
     replace: bool = False
     """Replace a shipped policy of that name."""
+    dest: Path | None = None
+    """Write to DEST/NAME rather than into the package (pe_mjx/assets/policies)."""
 
 
 def ship(args: Args) -> Path:
     meta = checkpoint.read_meta(args.run, args.step)  # validates the run and the step
     step = meta["step"]
-    dest = policies_dir() / args.name
+    dest = (args.dest or policies_dir()) / args.name
     if "/" in args.name or args.name.startswith("."):
         raise SystemExit(f"ship_policy: error: bad name {args.name!r}")
     if dest.exists():
@@ -56,7 +63,7 @@ def ship(args: Args) -> Path:
             shutil.copy2(src / item, out / item)
     shutil.copy2(args.run / "config.json", dest / "config.json")
     link = ROOT / "assets" / "policies" / args.name
-    if not link.is_symlink():
+    if args.dest is None and not link.is_symlink():
         link.symlink_to(Path("../../pe_mjx/assets/policies") / args.name)
     checkpoint.read_meta(dest)  # the shipped copy reads back
     print(f"shipped {args.run} step {step} ({meta['env_steps']:,} env steps) as {dest}")
