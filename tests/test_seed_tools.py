@@ -21,7 +21,10 @@ def _load(name: str):
     return module
 
 
-def _evaluation(path: Path, success: float, length: float) -> Path:
+META = {"preset": "20-5-8", "trials": 100, "seed": 0, "backend": "kinematic"}
+
+
+def _evaluation(path: Path, success: float, length: float, extra=(), **meta) -> Path:
     summary = {
         "success_rate": success,
         "travel_distance": 10.0 * success,
@@ -31,10 +34,10 @@ def _evaluation(path: Path, success: float, length: float) -> Path:
     }
     pairings = [
         {"pursuer": {"label": p}, "evader": {"label": e}, "summary": summary}
-        for p, e in [("P_MIX(20,5,8)", "E_MIX(20,5,8)"), ("P_scripted", "E_MIX(20,5,8)")]
+        for p, e in [("P_MIX(20,5,8)", "E_MIX(20,5,8)"), ("P_scripted", "E_MIX(20,5,8)"), *extra]
     ]
     path.mkdir()
-    (path / "results.json").write_text(json.dumps({"pairings": pairings}))
+    (path / "results.json").write_text(json.dumps({"meta": META | meta, "pairings": pairings}))
     return path
 
 
@@ -43,6 +46,8 @@ def test_seed_spread_gives_mean_std_and_range_over_seeds(tmp_path):
         _evaluation(tmp_path / f"s{i}", s, n)
         for i, (s, n) in enumerate([(0.9, 500), (0.8, 700), (1.0, 600)])
     ]
+    # seed 0's evaluation is a larger table: its other pairings are left out and listed
+    runs[0] = _evaluation(tmp_path / "table", 0.9, 500, extra=[("P_MEAN(20,5,8)", "E_MIX(20,5,8)")])
     out = tmp_path / "seeds"
     subprocess.run(
         [
@@ -68,17 +73,18 @@ def test_seed_spread_gives_mean_std_and_range_over_seeds(tmp_path):
     )
 
 
-def test_seed_spread_refuses_evaluations_of_other_pairings_in_one_line(tmp_path):
+def test_seed_spread_refuses_evaluations_it_cannot_compare_in_one_line(tmp_path):
     a = _evaluation(tmp_path / "a", 0.9, 500)
     b = tmp_path / "b"
     b.mkdir()
-    (b / "results.json").write_text(json.dumps({"pairings": []}))
+    (b / "results.json").write_text(json.dumps({"meta": META, "pairings": []}))
     c = tmp_path / "c"
     c.mkdir()
     (c / "results.json").write_text("{not json")
     tool = str(ROOT / "tools" / "seed_spread.py")
     for other, says in [
-        (b, "other pairings"),
+        (b, "no pairing"),
+        (_evaluation(tmp_path / "e", 0.9, 500, preset="16-4-4"), "not the same evaluation"),
         (c, "not a pe-mjx results.json"),
         (tmp_path / "d", "does not exist"),
     ]:

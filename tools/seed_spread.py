@@ -5,7 +5,9 @@
 
 Each input is the output directory of one `pe-mjx evaluate` (its results.json), run with one
 seed's policies and the same pairings, trials and scene. Pairings are matched by their labels
-("P_MIX(20,5,8)" vs "E_scripted"), which the seeds share. Writes `<out>/seeds.json` and
+("P_MIX(20,5,8)" vs "E_scripted"), which the seeds share; only the pairings every evaluation
+played are summarised (so a seed's numbers may come from a larger table, such as Table III's
+results.json), and the others are listed as left out. Writes `<out>/seeds.json` and
 `<out>/seeds.md`: per pairing and metric, every seed's value (itself a mean over that
 evaluation's trials, with its 95% interval in the seed's results.md), their mean, the sample
 standard deviation over seeds and the range. The spread over seeds is the one that says how much
@@ -39,27 +41,34 @@ class Args:
     title: str = "Mean and spread over seeds"
 
 
-def _read(directory: Path) -> dict[tuple[str, str], dict]:
+SAME = ("preset", "trials", "seed", "backend")  # what every seed's evaluation must share
+
+
+def _read(directory: Path) -> tuple[dict, dict[tuple[str, str], dict]]:
     path = directory / "results.json"
     if not path.is_file():
         raise SystemExit(f"seed_spread: error: {path} does not exist (run `pe-mjx evaluate` first)")
     if path.stat().st_size > 64 * 2**20:
         raise SystemExit(f"seed_spread: error: {path} is over 64 MiB; not a results.json")
     try:
-        pairings = json.loads(path.read_text())["pairings"]
-        return {(p["pursuer"]["label"], p["evader"]["label"]): p["summary"] for p in pairings}
+        results = json.loads(path.read_text())
+        meta = {k: results["meta"][k] for k in SAME}
+        pairings = {
+            (p["pursuer"]["label"], p["evader"]["label"]): p["summary"] for p in results["pairings"]
+        }
     except (ValueError, KeyError, TypeError) as e:
         raise SystemExit(f"seed_spread: error: {path} is not a pe-mjx results.json ({e})") from e
+    return meta, pairings
 
 
-def spread(evaluations: list[dict[tuple[str, str], dict]]) -> list[dict]:
-    keys = list(evaluations[0])
-    for i, ev in enumerate(evaluations[1:], 1):
-        if set(ev) != set(keys):
-            raise SystemExit(
-                f"seed_spread: error: evaluation {i} plays other pairings than evaluation 0: "
-                f"{sorted(set(ev) ^ set(keys))}"
-            )
+def spread(evaluations: list[dict[tuple[str, str], dict]]) -> tuple[list[dict], list]:
+    """Rows for the pairings every evaluation played, and the pairings left out."""
+    keys = [k for k in evaluations[0] if all(k in ev for ev in evaluations[1:])]
+    if not keys:
+        raise SystemExit(
+            "seed_spread: error: no pairing (pursuer, evader labels) is in every evaluation"
+        )
+    left_out = sorted({k for ev in evaluations for k in ev} - set(keys))
     rows = []
     for pursuer, evader in keys:
         row = {"pursuer": pursuer, "evader": evader, "seeds": len(evaluations)}
@@ -73,17 +82,18 @@ def spread(evaluations: list[dict[tuple[str, str], dict]]) -> list[dict]:
                 "max": max(values),
             }
         rows.append(row)
-    return rows
+    return rows, left_out
 
 
-def markdown(rows: list[dict], title: str, sources: list[str]) -> str:
+def markdown(rows: list[dict], title: str, sources: list[str], left_out: list, meta: dict) -> str:
     lines = [
         f"# {title}",
         "",
         "Written by `python tools/seed_spread.py` from "
         + ", ".join(f"`{s}`" for s in sources)
-        + ". Each cell: mean over seeds ± sample standard deviation over seeds [lowest, "
-        "highest seed].",
+        + f". Scene {meta['preset']}, {meta['trials']} trials per pairing and seed (trial seed "
+        f"{meta['seed']}), {meta['backend']} backend. Each cell: mean over seeds ± sample "
+        "standard deviation over seeds [lowest, highest seed].",
         "",
         "| Evader | Pursuer | " + " | ".join(label for label, _ in METRICS.values()) + " |",
         "|---|---|" + "---|" * len(METRICS),
@@ -97,19 +107,42 @@ def markdown(rows: list[dict], title: str, sources: list[str]) -> str:
                 f"[{m['min']:.{digits}f}, {m['max']:.{digits}f}]"
             )
         lines.append(f"| {row['evader']} | {row['pursuer']} | " + " | ".join(cells) + " |")
+    if left_out:
+        lines += [
+            "",
+            "Left out (not played in every evaluation): "
+            + "; ".join(f"{e} vs {p}" for p, e in left_out)
+            + ".",
+        ]
     return "\n".join(lines) + "\n"
 
 
 def main(args: Args) -> None:
     if len(args.evaluations) < 2:
         raise SystemExit("seed_spread: error: give at least two evaluations (one per seed)")
-    rows = spread([_read(d) for d in args.evaluations])
+    read = [_read(d) for d in args.evaluations]
+    for d, (meta, _) in zip(args.evaluations, read, strict=True):
+        if meta != read[0][0]:
+            raise SystemExit(
+                f"seed_spread: error: {d} was evaluated with {meta}, "
+                f"{args.evaluations[0]} with {read[0][0]}: not the same evaluation"
+            )
+    rows, left_out = spread([pairings for _, pairings in read])
     args.out.mkdir(parents=True, exist_ok=True)
     sources = [str(d) for d in args.evaluations]
     (args.out / "seeds.json").write_text(
-        json.dumps({"evaluations": sources, "pairings": rows}, indent=1) + "\n"
+        json.dumps(
+            {
+                "evaluations": sources,
+                "meta": read[0][0],
+                "pairings": rows,
+                "left_out": [list(k) for k in left_out],
+            },
+            indent=1,
+        )
+        + "\n"
     )
-    (args.out / "seeds.md").write_text(markdown(rows, args.title, sources))
+    (args.out / "seeds.md").write_text(markdown(rows, args.title, sources, left_out, read[0][0]))
     print(f"wrote {args.out / 'seeds.json'} and {args.out / 'seeds.md'}")
 
 
