@@ -97,19 +97,30 @@ def draw(data: dict, figures: Path) -> list[Path]:
                 steps, values = zip(*points, strict=True)
                 marker = "o" if tag.startswith("eval/") else None
                 ax.plot(steps, values, marker=marker, markersize=3, label=label, color=color)
-            ax.set_xlabel("env steps")
-            ax.set_ylabel(ylabel)
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=8)
-            if panel == "success":
-                ax.set_ylim(0, 1.02)
-        fig.suptitle(f"{name}: each learned team against the scripted opponent")
-        fig.tight_layout(rect=(0, 0, 1, 0.95))
-        path = figures / f"curves-{name}.png"
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        paths.append(path)
+            _style(ax, panel, ylabel)
+        title = f"{name}: each learned team against the scripted opponent"
+        paths.append(_save(fig, title, figures / f"curves-{name}.png"))
     return paths
+
+
+def _style(ax, panel: str, ylabel: str) -> None:
+    ax.set_xlabel("env steps")
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+    if panel == "success":
+        ax.set_ylim(0, 1.02)
+
+
+def _save(fig, title: str, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 def seed_groups(data: dict) -> dict[str, list[str]]:
@@ -155,22 +166,10 @@ def draw_seeds(data: dict, figures: Path) -> list[Path]:
                     alpha=0.2,
                     label=f"{label} (range over seeds)",
                 )
-            ax.set_xlabel("env steps")
-            ax.set_ylabel(ylabel)
-            ax.grid(alpha=0.3)
-            if ax.get_legend_handles_labels()[0]:
-                ax.legend(fontsize=8)
-            if panel == "success":
-                ax.set_ylim(0, 1.02)
-        fig.suptitle(
-            f"{group}, seeds {', '.join(n.rsplit('-s', 1)[1] for n in names)}: "
-            "each learned team against the scripted opponent"
-        )
-        fig.tight_layout(rect=(0, 0, 1, 0.95))
-        path = figures / f"curves-{group}-seeds.png"
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        paths.append(path)
+            _style(ax, panel, ylabel)
+        seeds = ", ".join(n.rsplit("-s", 1)[1] for n in names)
+        title = f"{group}, seeds {seeds}: each learned team against the scripted opponent"
+        paths.append(_save(fig, title, figures / f"curves-{group}-seeds.png"))
     return paths
 
 
