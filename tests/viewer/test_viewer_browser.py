@@ -286,10 +286,12 @@ def test_checkpoint_policies_attention_overlay_and_team_mismatch(browser, live_v
         assert live_viewer.source.run.policies["evader"].label == "random"
         live_viewer.gui_att_show.value = True
         wait_for_text(page, "self", timeout=30, what="the attention summary")
-        image = page.wait_for_image(
-            lambda im: attention_pixels(im) > before + 100, timeout=RENDER_TIMEOUT
+        # The arena plays on: a frame just after the lone evader's capture shows no evader, so
+        # wait for a frame with the overlay and both teams (the next episode brings it back).
+        page.wait_for_image(
+            lambda im: attention_pixels(im) > before + 100 and shows_both_teams(im),
+            timeout=RENDER_TIMEOUT,
         )
-        assert shows_both_teams(image)
     finally:
         live_viewer.gui_att_show.value = False
         live_viewer.gui_pursuer_policy.value = "scripted"
