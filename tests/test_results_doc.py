@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -34,8 +35,6 @@ def test_the_paper_tables_in_results_md_are_those_reproduce_wrote():
 
 
 def test_the_per_method_means_in_results_md_are_those_paper_findings_wrote():
-    import json
-
     results = (DOCS / "results.md").read_text()
     table = json.loads((DOCS / "data" / "paper" / "findings.json").read_text())["table-III"]
     for method in ("mlp", "birnn", "mean", "mix"):

@@ -80,10 +80,7 @@ def collect(runs: tuple[Path, ...]) -> dict[str, dict[str, list[list[float]]]]:
 
 
 def draw(data: dict, figures: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
 
     figures.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -113,9 +110,17 @@ def _style(ax, panel: str, ylabel: str) -> None:
         ax.set_ylim(0, 1.02)
 
 
-def _save(fig, title: str, path: Path) -> Path:
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, no display
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def _save(fig, title: str, path: Path) -> Path:
+    plt = _pyplot()
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
     fig.savefig(path, dpi=100)
@@ -132,11 +137,9 @@ def seed_groups(data: dict) -> dict[str, list[str]]:
 
 
 def draw_seeds(data: dict, figures: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
+
+    plt = _pyplot()
 
     paths = []
     for group, names in seed_groups(data).items():
