@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
+import re
 from pathlib import Path
 from typing import Literal
 
@@ -36,6 +37,9 @@ class ReproduceArgs:
 
     runs: Path = Path("runs")
     """Where the co-evolution runs live (train/launch.py's layout: <encoder>-<preset>)."""
+    suffix: str = ""
+    """Appended to every run's name (<encoder>-<preset><suffix>): "-3m" evaluates the shipped
+    policies trained to 3M env steps (assets/policies/mix-20-5-8-3m, ...)."""
     out: Path = Path("results/paper")
     """Per-table evaluation outputs."""
     docs: Path = Path("docs/paper_tables.md")
@@ -82,17 +86,31 @@ def _train(args: ReproduceArgs) -> None:
     for name, config in paper_runs(budget, args.backend).items():
         if config.pursuer.network.encoder not in args.encoders or config.preset not in scales:
             continue  # only the co-evolutions that the chosen tables use
-        out = args.runs / name
+        out = args.runs / f"{name}{args.suffix}"
         resume = (out / checkpoint.CHECKPOINT_DIR).exists()
         if resume and checkpoint.read_meta(out)["env_steps"] >= budget:
             continue
-        print(f"training {name} ({budget:,} env steps)", flush=True)
+        print(f"training {out.name} ({budget:,} env steps)", flush=True)
         train(config, out, resume=resume)
+
+
+def found_runs(args: ReproduceArgs, scale: str) -> list[str]:
+    """The runs of the chosen methods trained at `scale` that have a checkpoint, as sources."""
+    from pe_mjx.ppo import checkpoint
+
+    found = []
+    for encoder in args.encoders:
+        run = args.runs / f"{encoder}-{scale}{args.suffix}"
+        try:
+            checkpoint.read_meta(run)
+        except checkpoint.CheckpointError:
+            continue
+        found.append(str(run))
+    return found
 
 
 def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
     from pe_mjx.evaluate import evaluate
-    from pe_mjx.ppo import checkpoint
 
     done = {}
     for table in args.tables:
@@ -102,15 +120,7 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
             done[table] = json.loads((out / "results.json").read_text())
             continue
 
-        def have(encoder: str, scale: str) -> bool:
-            try:
-                checkpoint.read_meta(args.runs / f"{encoder}-{scale}")
-                return True
-            except checkpoint.CheckpointError:
-                return False
-
-        pursuers = [str(args.runs / f"{e}-{p_scale}") for e in args.encoders if have(e, p_scale)]
-        evaders = [str(args.runs / f"{e}-{e_scale}") for e in args.encoders if have(e, e_scale)]
+        pursuers, evaders = found_runs(args, p_scale), found_runs(args, e_scale)
         if not pursuers or not evaders:
             print(f"table {table}: no runs for it yet, skipped")
             continue
@@ -173,9 +183,10 @@ def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
         lines += [*_budgets(done), ""]
     for table, data in done.items():
         scene, p_scale, e_scale = table_scales(table, args.transfer_evaders)
+        runs = f"; runs `<encoder>-<scale>{args.suffix}`" if args.suffix else ""
         lines += [
             f"## Table {table}: scene {scene} "
-            f"(pursuers trained at {p_scale}, evaders at {e_scale})",
+            f"(pursuers trained at {p_scale}, evaders at {e_scale}{runs})",
             "",
         ]
         if e_scale != TABLES[table][2]:
@@ -226,6 +237,10 @@ def reproduce(args: ReproduceArgs) -> Path:
         raise ValueError(f"--fraction must be in (0, 1], got {args.fraction}")
     if args.trials < 1:
         raise ValueError(f"--trials must be >= 1, got {args.trials}")
+    if not re.fullmatch(r"[A-Za-z0-9._-]*", args.suffix):
+        raise ValueError(
+            f"--suffix may hold only letters, digits, '.', '_' and '-', got {args.suffix!r}"
+        )
     if not args.skip_train:
         _train(args)
     done = _evaluate(args)

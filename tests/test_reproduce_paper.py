@@ -4,6 +4,7 @@ and resumes without redoing anything."""
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -91,3 +92,26 @@ def test_transferred_evaders_are_stated_in_the_report(tmp_path):
     rows = [line for line in report.splitlines() if line.startswith("| E_")]
     assert rows[0] == "| E_scripted | P_MIX(20,5,8) | 0.500 / - | 9.00 / - | 5.00 / - | 1.250 / - |"
     assert rows[1].split("|")[3].strip() == "0.500 / 0.932"
+
+
+def test_suffix_picks_the_runs_with_it_and_names_them_in_the_report(tmp_path):
+    from pe_mjx.reproduce import ReproduceArgs, _report, found_runs
+
+    policies = ROOT / "pe_mjx" / "assets" / "policies"
+    shutil.copytree(policies / "mix-20-5-8", tmp_path / "mix-20-5-8-3m")
+    shutil.copytree(policies / "mean-20-5-8", tmp_path / "mean-20-5-8")
+    args = ReproduceArgs(runs=tmp_path, encoders=("mix", "mean"), suffix="-3m")
+    assert found_runs(args, "20-5-8") == [str(tmp_path / "mix-20-5-8-3m")]
+    plain = dataclasses.replace(args, suffix="")
+    assert found_runs(plain, "20-5-8") == [str(tmp_path / "mean-20-5-8")]
+    assert found_runs(args, "16-4-4") == []
+    report = _report(dataclasses.replace(args, tables=("III",)), {"III": {"pairings": []}})
+    assert "evaders at 20-5-8; runs `<encoder>-<scale>-3m`)" in report
+
+
+def test_a_suffix_with_a_path_in_it_is_one_line_error(tmp_path):
+    out = _run("--suffix", "/../x", "--skip-train", "--runs", str(tmp_path), "--out", str(tmp_path))
+    assert out.returncode != 0
+    assert out.stderr.startswith("pe-mjx: error:") and "--suffix" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
