@@ -181,9 +181,9 @@ def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
     ]
     if args.skip_train:
         lines += [*_budgets(done), ""]
+    runs = f"; runs `<encoder>-<scale>{args.suffix}`" if args.suffix else ""
     for table, data in done.items():
         scene, p_scale, e_scale = table_scales(table, args.transfer_evaders)
-        runs = f"; runs `<encoder>-<scale>{args.suffix}`" if args.suffix else ""
         lines += [
             f"## Table {table}: scene {scene} "
             f"(pursuers trained at {p_scale}, evaders at {e_scale}{runs})",
