@@ -37,18 +37,24 @@ class Args:
     """The reproduce output (table-II ... table-VI)."""
 
 
-def summarize(results: dict) -> dict:
-    by_p, by_e = defaultdict(list), defaultdict(list)
+def _learned_pairings(results: dict):
+    """(pursuit method, evasion method, summary) of each pairing of two learned policies."""
     for pairing in results["pairings"]:
         p, e = method_of(pairing["pursuer"]["source"]), method_of(pairing["evader"]["source"])
-        s = pairing["summary"]
+        if p in ENCODERS and e in ENCODERS:
+            yield p, e, pairing["summary"]
+
+
+def summarize(results: dict) -> dict:
+    by_p, by_e = defaultdict(list), defaultdict(list)
+    for p, e, s in _learned_pairings(results):
         row = {
             "success": s["success_rate"],
             "per_evader_cost": s["per_evader_cost"],
             "travel": s["travel_distance"],
             "against": e,
         }
-        if p != e and p in ENCODERS and e in ENCODERS:  # the paper's cross pairings only
+        if p != e:  # the paper's cross pairings only
             by_p[p].append(row)
             by_e[e].append({**row, "against": p})
 
@@ -79,10 +85,8 @@ def summarize(results: dict) -> dict:
 def duels(results: dict) -> dict[str, dict]:
     """For each two evasion methods: their mean success conceded over the common pursuers."""
     conceded: dict[str, dict[str, float]] = defaultdict(dict)
-    for pairing in results["pairings"]:
-        p, e = method_of(pairing["pursuer"]["source"]), method_of(pairing["evader"]["source"])
-        if p in ENCODERS and e in ENCODERS:
-            conceded[e][p] = pairing["summary"]["success_rate"]
+    for p, e, s in _learned_pairings(results):
+        conceded[e][p] = s["success_rate"]
     out = {}
     methods = [m for m in ENCODERS if m in conceded]
     for i, a in enumerate(methods):
