@@ -17,7 +17,7 @@ from typing import Annotated, Literal
 
 import tyro
 
-from pe_mjx.config import PRESETS
+from pe_mjx.config import PRESETS, EnvConfig
 from pe_mjx.experiment import ExperimentConfig
 from pe_mjx.names import BACKENDS, BUILTIN_POLICIES
 from pe_mjx.reproduce import ReproduceArgs
@@ -26,6 +26,13 @@ from pe_mjx.reproduce import ReproduceArgs
 def _fail(message: str) -> None:
     print(f"pe-mjx: error: {message}", file=sys.stderr)
     raise SystemExit(2)
+
+
+def _exit_now(message: str, code: int) -> None:
+    """Prints `message` on stderr and ends the process at once, joining no thread."""
+    print(message, file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(code)
 
 
 def _check_preset(name: str) -> None:
@@ -217,9 +224,13 @@ def run_train(args: TrainArgs) -> None:
                 viewer.stop()
     except CheckpointWriteError as err:
         # orbax may have left threads waiting forever: end without waiting for them
-        print(f"pe-mjx: error: {err}", file=sys.stderr, flush=True)
-        sys.stdout.flush()
-        os._exit(2)
+        _exit_now(f"pe-mjx: error: {err}", 2)
+    except KeyboardInterrupt:
+        # Everything worth keeping is on disk by now: checkpoints are written with interrupts
+        # held back, and `train` closed its loggers while unwinding. The interpreter's own exit
+        # would then join every thread orbax, jax or a logger left behind, and one stuck among
+        # them hung a Ctrl-C'd run under load (a flaky CI test): end without waiting.
+        _exit_now("pe-mjx: interrupted", 130)
     except (CheckpointError, TrainingError) as err:
         _fail(str(err))
     _training_summary(out, state, config)
@@ -434,12 +445,22 @@ class EvaluateArgs:
     directory. Writes results.md (the
     paper's table layout), results.csv, trials.csv, results.json, heatmaps and trajectories."""
 
+    env: Annotated[EnvConfig, tyro.conf.arg(name="env")] = dataclasses.field(
+        default_factory=lambda: PRESETS["20-5-8"]
+    )
+    """The scene the trials play, every field a flag as in `pe-mjx train` (--env.pursuer.num-agents
+    60 --env.arena.radius 10); its defaults are --preset's (or --config's). Policies trained
+    elsewhere play it unchanged: generalization."""
     pursuers: tuple[str, ...] = ("scripted",)
     """Pursuit policies."""
     evaders: tuple[str, ...] = ("scripted",)
     """Evasion policies."""
-    preset: PresetName = "20-5-8"
-    """Scene to evaluate in (policies trained elsewhere are run unchanged: generalization)."""
+    preset: PresetName | None = None
+    """Scenario preset (P-E-K) whose scene the env flags start from (default 20-5-8)."""
+    config: Path | None = None
+    """Read the scene from this JSON or YAML file: an env tree (whole or partial, over the
+    preset), an experiment tree or a run's config.json (its env); flags given with it override
+    it."""
     trials: int = 100
     """Episodes per pairing (one vmapped batch)."""
     seed: int = 0
@@ -468,8 +489,38 @@ def _check_policy_specs(flag: str, specs: tuple[str, ...], team: str) -> None:
         _check_run_learned(flag, spec, team)
 
 
+def evaluate_defaults(argv: list[str]) -> EvaluateArgs:
+    """The `EvaluateArgs` whose scene the flags in `argv` then change: a config file's scene over
+    a preset, or a preset's scene."""
+    from pe_mjx.experiment import read_env_file
+
+    found = _prescan(argv)
+    preset = found.get("--preset")
+    if preset is not None and preset not in PRESETS:
+        _fail(f"--preset: unknown preset {preset!r}; known presets: {', '.join(PRESETS)}")
+    if "--resume" in found:
+        _fail("pe-mjx evaluate has no --resume; name the run in --pursuers or --evaders")
+    if "--config" in found:
+        try:
+            return EvaluateArgs(env=read_env_file(found["--config"], preset))
+        except ValueError as err:
+            _fail(str(err))
+    return EvaluateArgs(env=PRESETS[preset or "20-5-8"])
+
+
+def _named_scene(env: EnvConfig) -> EnvConfig:
+    """The scene under a name that tells what it is in the reports: a preset's name only if it is
+    that preset; otherwise its counts ("60-15-30"), with "-custom" when it also differs from the
+    preset of those counts (or no preset has them). A name the user gave is kept."""
+    if env.name not in PRESETS or PRESETS[env.name] == env:
+        return env
+    counts = f"{env.pursuer.num_agents}-{env.evader.num_agents}-{env.arena.num_obstacles}"
+    if PRESETS.get(counts) == env.replace(name=counts):
+        return env.replace(name=counts)
+    return env.replace(name=f"{counts}-custom")
+
+
 def run_evaluate(args: EvaluateArgs) -> None:
-    _check_preset(args.preset)
     if not 1 <= args.trials <= MAX_TRIALS:
         _fail(f"--trials must be in 1..{MAX_TRIALS}, got {args.trials}")
     if args.record < 0:
@@ -488,7 +539,7 @@ def run_evaluate(args: EvaluateArgs) -> None:
     report = evaluate(
         list(args.pursuers),
         list(args.evaders),
-        args.preset,
+        _named_scene(args.env),
         args.out,
         args.trials,
         args.seed,
@@ -708,18 +759,25 @@ def main(argv: list[str] | None = None) -> None:
             print("pe-mjx (not installed: no version)")
         return
     subcommands = {name: cls for name, (cls, _) in commands.items()}
-    if argv[:1] == ["train"]:
+    # train and evaluate take every field of their config as a flag, over defaults that
+    # --preset, --config (and train's --resume) choose: read those first.
+    with_defaults = {
+        "train": (TrainArgs, train_defaults),
+        "evaluate": (EvaluateArgs, evaluate_defaults),
+    }
+    if argv[:1] and argv[0] in with_defaults:
+        cls, defaults = with_defaults[argv[0]]
         try:
-            default = train_defaults(argv[1:])
+            default = defaults(argv[1:])
         except ValueError as err:
             _fail(str(err))
         args = _parse(
             lambda: tyro.cli(
-                TrainArgs,
+                cls,
                 args=argv[1:],
                 default=default,
-                prog="pe-mjx train",
-                description=TrainArgs.__doc__,
+                prog=f"pe-mjx {argv[0]}",
+                description=cls.__doc__,
             )
         )
     else:

@@ -519,6 +519,7 @@ def _evaluate_into(
     )
     meta = {
         "preset": env_config.name,
+        "env_config": env_config.to_dict(),  # the whole scene, also when it is no preset
         "trials": trials,
         "seed": seed,
         "backend": backend,

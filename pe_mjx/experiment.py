@@ -214,9 +214,12 @@ class ExperimentConfig:
     """Training budget in env steps (one control step of one arena)."""
     seed: int = 0
     """Seed of the parameters, the arenas and the sampled actions (0 <= seed < 2**32)."""
-    eval_every: int = 20
-    """Evaluate against the scripted opponents every this many iterations (0: never)."""
-    eval_envs: int = 16
+    eval_every: int = 100
+    """Evaluate against the scripted opponents every this many iterations (0: never). The
+    default keeps the evaluation under 10% of a run's wall time at 20-5-8 for every encoder
+    (`tools/bench_eval.py`; a run logs its own share as `perf/eval_share`): 15 points over a
+    3M-env-step run of 64 x 32 arenas and steps, 49 over 10M."""
+    eval_envs: int = 32
     """Arenas per evaluation (each runs one full episode)."""
     checkpoint_every: int = 20
     """Save a checkpoint every this many iterations (and at the end)."""
@@ -330,17 +333,23 @@ def default_config(preset: str = "20-5-8") -> ExperimentConfig:
     return ExperimentConfig(env=training_env(preset))
 
 
-def read_config_file(path: str | Path, preset: str | None = None) -> ExperimentConfig:
-    """An experiment from a JSON or YAML file: a whole tree or a partial one over the preset's
-    defaults (the file's `env.name`, else `preset`, else 20-5-8). A run directory's `config.json`
-    (which holds the tree under "experiment") is accepted as it is."""
-    path = Path(path)
+MAX_CONFIG_BYTES = 1_000_000
+
+
+def _read_tree(path: Path) -> dict[str, Any]:
+    """The object a JSON or YAML config file holds (ValueError naming `--config` and the file).
+    A run directory's `config.json` gives its experiment tree. The size is checked before the
+    file is read."""
+    try:
+        size = path.stat().st_size
+    except OSError as err:
+        raise ValueError(f"--config {path}: cannot read: {err.strerror or err}") from None
+    if size > MAX_CONFIG_BYTES:
+        raise ValueError(f"--config {path}: larger than 1 MB; not a config file")
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as err:
         raise ValueError(f"--config {path}: cannot read: {err.__class__.__name__}") from None
-    if len(text) > 1_000_000:
-        raise ValueError(f"--config {path}: larger than 1 MB; not a config file")
     try:
         if path.suffix.lower() in (".yaml", ".yml"):
             import yaml
@@ -355,6 +364,31 @@ def read_config_file(path: str | Path, preset: str | None = None) -> ExperimentC
         data = data["experiment"]
     if not isinstance(data, dict):
         raise ValueError(f"--config {path}: must hold an object (a config tree)")
+    return data
+
+
+def read_env_file(path: str | Path, preset: str | None = None) -> EnvConfig:
+    """A scene from a JSON or YAML file, whole or partial over a preset's (the file's `name`,
+    else `preset`, else 20-5-8): an env tree, or an experiment tree or a run's `config.json`,
+    whose `env` is taken."""
+    path = Path(path)
+    data = _read_tree(path)
+    if isinstance(data.get("env"), dict):
+        data = data["env"]
+    name = data.get("name")
+    base = name if isinstance(name, str) and name in PRESETS else (preset or "20-5-8")
+    try:
+        return EnvConfig.from_dict(merge(get_preset(base).to_dict(), data))
+    except ValueError as err:
+        raise ValueError(f"--config {path}: {err}") from None
+
+
+def read_config_file(path: str | Path, preset: str | None = None) -> ExperimentConfig:
+    """An experiment from a JSON or YAML file: a whole tree or a partial one over the preset's
+    defaults (the file's `env.name`, else `preset`, else 20-5-8). A run directory's `config.json`
+    (which holds the tree under "experiment") is accepted as it is."""
+    path = Path(path)
+    data = _read_tree(path)
     env_name = data.get("env", {}).get("name") if isinstance(data.get("env"), dict) else None
     base_preset = env_name if env_name in PRESETS else (preset or "20-5-8")
     try:

@@ -204,6 +204,12 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
     add("evaluate-pursuer-plain-dir", *ev, *ev_out, "--pursuers", str(w / "adir"))
     add("evaluate-evader-missing", *ev, *ev_out, "--evaders", "scripted", "nope")
     add("evaluate-unknown-flag", *ev, *ev_out, "--episodes", "3")
+    add("evaluate-env-count", *ev, *ev_out, "--env.pursuer.num-agents", "0")
+    add("evaluate-env-radius", *ev, *ev_out, "--env.arena.radius", "nan")
+    add("evaluate-env-unknown", *ev, *ev_out, "--env.arena.walls", "3")
+    add("evaluate-config-missing", *ev, *ev_out, "--config", str(w / "none.json"))
+    add("evaluate-config-not-json", *ev, *ev_out, "--config", str(w / "afile"))
+    add("evaluate-config-resume", *ev, *ev_out, "--resume", str(w / "adir"))
     for name in DAMAGED:
         add(f"evaluate-damaged-{name}", *ev, *ev_out, "--pursuers", str(runs / name))
     # ---- view (all fail before the server starts)

@@ -133,14 +133,19 @@ def _cli(*args, timeout=900):
 
 
 def test_cli_end_to_end_and_bad_inputs(tmp_path):
+    """Also a scene of the user's: a config file over the preset, then a flag over the file."""
     out = tmp_path / "cli"
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("name: 2-1-1\narena: {radius: 3.0}\npursuer: {num_agents: 4}\n")
     ok = _cli(
         "--pursuers",
         "scripted",
         "--evaders",
         "random",
-        "--preset",
-        "2-1-1",
+        "--config",
+        str(scene),
+        "--env.pursuer.num-agents",
+        "3",
         "--trials",
         "4",
         "--backend",
@@ -153,6 +158,11 @@ def test_cli_end_to_end_and_bad_inputs(tmp_path):
     )
     assert ok.returncode == 0, ok.stderr[-2000:]
     assert "| E_random | P_scripted |" in ok.stdout
+    assert "Results of 3 pursuers, 1 evaders and 1 obstacles" in ok.stdout
+    meta = json.loads((out / "results.json").read_text())["meta"]
+    assert meta["preset"] == "3-1-1-custom"  # no preset has these rules
+    assert meta["env_config"]["arena"]["radius"] == 3.0
+    assert meta["env_config"]["pursuer"]["num_agents"] == 3
     # Without the progress bar each compile is still announced, on stderr.
     assert "E_random vs P_scripted: compiling..." in ok.stderr
     assert "compiling the recording..." in ok.stderr and "compiling" not in ok.stdout
@@ -160,7 +170,7 @@ def test_cli_end_to_end_and_bad_inputs(tmp_path):
     again = _cli("--pursuers", "scripted", "--preset", "2-1-1", "--out", str(out))
     assert again.returncode != 0 and "already holds results" in again.stderr
     for args, message in (
-        (("--preset", "9-9-9"), "invalid choice '9-9-9' for argument '--preset'"),
+        (("--preset", "9-9-9"), "--preset: unknown preset '9-9-9'"),
         (("--pursuers", str(tmp_path / "missing-run")), "is not scripted, random, a shipped"),
         (("--trials", "0"), "trials"),
     ):

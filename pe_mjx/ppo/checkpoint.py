@@ -170,8 +170,40 @@ def _manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:
     )
 
 
+@contextlib.contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """Holds SIGINT and SIGTERM back until the block is done, then raises `KeyboardInterrupt`
+    if one came.
+
+    A Ctrl-C that lands inside an orbax save raises in the main thread while orbax's worker
+    threads are midway; they then wait forever for the main thread, and the process hung instead
+    of exiting (a flaky CI test, 2026-12). Deferred, the save finishes (it takes well under a
+    second for this project's states) and the interrupt stops the run after it, with that
+    checkpoint complete. Outside the main thread signals cannot be handled and nothing changes.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {sig: signal.signal(sig, lambda num, _frame: caught.append(num)) for sig in signals}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if caught:
+        raise KeyboardInterrupt
+
+
 def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
-    """Writes a checkpoint of `train_state` (blocking); returns its iteration."""
+    """Writes a checkpoint of `train_state` (blocking); returns its iteration.
+
+    A SIGINT or SIGTERM during the save is held back until it is complete
+    (`_interrupts_deferred`), then raised as `KeyboardInterrupt`."""
     run_dir = Path(run_dir)
     step = int(train_state.iteration)
     policies = {
@@ -189,7 +221,7 @@ def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
     }
     _check_writable(run_dir / CHECKPOINT_DIR, step)
     try:
-        with _manager(run_dir, create=True) as mngr:
+        with _interrupts_deferred(), _manager(run_dir, create=True) as mngr:
             mngr.save(
                 step,
                 args=ocp.args.Composite(

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -187,7 +188,7 @@ def _train(
     last_saved = int(state.iteration) if resume else None
     _write_config(run_dir, trainer)
     iteration_fn = jax.jit(trainer.iteration, donate_argnums=0)
-    evaluate_fn = jax.jit(trainer.evaluate)
+    evaluate_fn = None  # compiled at the first evaluation
     writer = SummaryWriter(str(run_dir / "tb"))
     wandb_run = _start_wandb(wandb_project, run_dir, config) if wandb_project else None
     start = int(state.iteration)
@@ -204,8 +205,11 @@ def _train(
         TimeRemainingColumn(),
     ]
     steps_done = int(state.env_steps)
-    evaluated = False  # the first evaluation compiles `evaluate_fn`
-    with Progress(*columns, disable=not progress) as bar:
+    # Wall time of this call's iterations and evaluations (compilation excluded), for
+    # `perf/eval_share`: the fraction of the run's time spent in the in-training evaluation.
+    spent = {"train": 0.0, "eval": 0.0}
+    # The loggers are closed also on Ctrl-C, so that the scalars logged so far reach the disk.
+    with _closing(writer, wandb_run), Progress(*columns, disable=not progress) as bar:
         task = bar.add_task(
             config.preset,
             total=total * config.steps_per_iteration,
@@ -237,6 +241,8 @@ def _train(
                 )
             toc = time.perf_counter()
             speed = config.steps_per_iteration / (toc - tic)
+            if it > start:  # the first iteration of a call compiles
+                spent["train"] += toc - tic
             tic = toc
             host["perf/env_steps_per_s"] = speed
             n_agents = trainer.env_config.num_agents
@@ -246,18 +252,22 @@ def _train(
                 host[f"ppo/{team}/learning_rate"] = lr
             if config.eval_every and (done_iters % config.eval_every == 0 or done_iters == total):
                 eval_key = jax.random.fold_in(jax.random.key(config.seed + 1), done_iters)
-                if not evaluated:
-                    evaluated = True
+                if evaluate_fn is None:  # compiled apart, so that its time is not counted
                     message = f"{config.preset}: compiling the evaluation..."
                     bar.update(task, description=message)
                     if not progress:
                         _note(message)
+                    evaluate_fn = jax.jit(trainer.evaluate).lower(state, eval_key).compile()
+                eval_tic = time.perf_counter()
                 latest_eval = {
                     k: float(v) for k, v in jax.device_get(evaluate_fn(state, eval_key)).items()
                 }
                 host.update(latest_eval)
                 bar.update(task, description=config.preset)
                 tic = time.perf_counter()  # evaluation time is not training throughput
+                spent["eval"] += tic - eval_tic
+                if spent["train"] > 0:
+                    host["perf/eval_share"] = spent["eval"] / (spent["eval"] + spent["train"])
             env_steps = int(state.env_steps)
             for k, v in host.items():
                 if np.isfinite(v):
@@ -275,10 +285,18 @@ def _train(
                 on_iteration(trainer, state, host)
             if done_iters % config.checkpoint_every == 0 or done_iters == end:
                 last_saved = checkpoint.save(run_dir, trainer, state)
-    writer.close()
-    if wandb_run is not None:
-        wandb_run.finish()
     return trainer, state
+
+
+@contextlib.contextmanager
+def _closing(writer: Any, wandb_run: Any) -> Iterator[None]:
+    """Closes the TensorBoard writer and the W&B run however the block ends."""
+    try:
+        yield
+    finally:
+        writer.close()
+        if wandb_run is not None:
+            wandb_run.finish()
 
 
 def _note(message: str) -> None:
@@ -314,7 +332,3 @@ def _start_wandb(project: str, run_dir: Path, config: ExperimentConfig) -> Any:
         config=config.to_dict(),
         resume="allow",
     )
-
-
-def summarize(state: TrainState) -> dict[str, Any]:
-    return {"iteration": int(state.iteration), "env_steps": int(state.env_steps)}

@@ -1,0 +1,122 @@
+"""What the in-training evaluation costs, per encoder: its share of a run's wall time.
+
+    python tools/bench_eval.py [--presets 20-5-8] [--out docs/bench_eval.json]
+
+For each encoder it times, in the same run and jitted and warmed up, one training iteration and
+one `Trainer.evaluate` (each learned team plays `eval_envs` full episodes against the scripted
+opponent) with fresh parameters, then gives the evaluation's share of the wall time,
+`eval / (eval + eval_every * iteration)`, for several `eval_every`. Fresh pursuers never catch, so
+their episodes last the whole `max_steps`: the figures are an upper bound of what a trained run
+pays (its own share is logged as `perf/eval_share` in TensorBoard).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import tyro
+
+from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.names import ENCODERS
+from pe_mjx.paper import paper_experiment
+from pe_mjx.ppo.train import Trainer
+
+
+@dataclasses.dataclass(frozen=True)
+class Args:
+    out: Path = Path("docs/bench_eval.json")
+    presets: tuple[str, ...] = ("20-5-8",)
+    encoders: tuple[str, ...] = ENCODERS
+    eval_envs: tuple[int, ...] = (16, 32)
+    eval_every: tuple[int, ...] = (20, 40, 100)
+    backend: str = "kinematic"
+    repeats: int = 2
+
+
+def _best(fn, repeats: int) -> float:
+    jax.block_until_ready(fn())
+    best = float("inf")
+    for _ in range(repeats):
+        tic = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - tic)
+    return best
+
+
+def measure(config: ExperimentConfig, args: Args) -> dict:
+    trainer = Trainer(config)
+    state = trainer.init()
+    iteration = jax.jit(trainer.iteration)
+    t_iter = _best(lambda: iteration(state)[1], args.repeats)
+    row = {
+        "preset": config.preset,
+        "encoder": config.pursuer.network.encoder,
+        "iteration_s": t_iter,
+        "env_steps_per_iteration": config.steps_per_iteration,
+        "eval_s": {},
+        "share": {},
+    }
+    key = jax.random.key(1)
+    for envs in args.eval_envs:
+        evaluator = Trainer(config.replace(eval_envs=envs))
+        evaluate = jax.jit(evaluator.evaluate)
+        t_eval = _best(lambda ev=evaluate: ev(state, key), args.repeats)
+        row["eval_s"][str(envs)] = t_eval
+        row["share"][str(envs)] = {
+            str(every): t_eval / (t_eval + every * t_iter) for every in args.eval_every
+        }
+    return row
+
+
+def main() -> None:
+    args = tyro.cli(Args)
+    rows = []
+    for preset in args.presets:
+        for encoder in args.encoders:
+            config = paper_experiment(encoder, preset, backend=args.backend)
+            row = measure(config, args)
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    machine = {
+        "cpu": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "load_avg_1min": os.getloadavg()[0],
+        "jax": jax.__version__,
+        "devices": [str(d) for d in jax.devices()],
+        "date": datetime.date.today().isoformat(),
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"machine": machine, "runs": rows}, indent=1))
+    print(table(rows, args))
+
+
+def table(rows: list[dict], args: Args) -> str:
+    heads = [f"{n} envs, every {e}" for n in args.eval_envs for e in args.eval_every]
+    lines = [
+        "| preset | encoder | iteration s | "
+        + " | ".join(f"eval s ({n} envs)" for n in args.eval_envs)
+        + " | "
+        + " | ".join(heads)
+        + " |",
+        "|---" * (3 + len(args.eval_envs) + len(heads)) + "|",
+    ]
+    for r in rows:
+        evals = " | ".join(f"{r['eval_s'][str(n)]:.1f}" for n in args.eval_envs)
+        shares = " | ".join(
+            f"{r['share'][str(n)][str(e)]:.0%}" for n in args.eval_envs for e in args.eval_every
+        )
+        lines.append(
+            f"| {r['preset']} | {r['encoder']} | {r['iteration_s']:.2f} | {evals} | {shares} |"
+        )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
