@@ -8,6 +8,10 @@ opponent) with fresh parameters, then gives the evaluation's share of the wall t
 `eval / (eval + eval_every * iteration)`, for several `eval_every`. Fresh pursuers never catch, so
 their episodes last the whole `max_steps`: the figures are an upper bound of what a trained run
 pays (its own share is logged as `perf/eval_share` in TensorBoard).
+
+It also times one step of each scripted policy over 32 arenas (the evaluation's opponents) as
+shipped and with `jnp.linalg.norm` in place of `pe_mjx.policies._norm`, the form they had
+before 2026-12-02, so that the speed-up is measured in one run.
 """
 
 from __future__ import annotations
@@ -21,8 +25,11 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import tyro
 
+from pe_mjx import policies
+from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.experiment import ExperimentConfig
 from pe_mjx.names import ENCODERS
 from pe_mjx.paper import paper_experiment
@@ -75,8 +82,32 @@ def measure(config: ExperimentConfig, args: Args) -> dict:
     return row
 
 
+def scripted_ms(preset: str, backend: str, repeats: int) -> dict:
+    """Milliseconds per call of each scripted policy on 32 arenas, per distance form."""
+    config = paper_experiment("mix", preset, backend=backend)
+    env = PursuitEvasionEnv(config.env, backend=backend)
+    keys = jax.random.split(jax.random.key(0), 32)
+    obs = jax.vmap(env.reset)(keys).obs
+    shipped = policies._norm
+    forms = {"per component": shipped, "linalg.norm": lambda v: jnp.linalg.norm(v, axis=-1)}
+    out: dict = {"preset": preset, "arenas": 32}
+    try:
+        for form, norm in forms.items():
+            policies._norm = norm  # read when the policy is traced
+            for team in ("pursuer", "evader"):
+                policy = policies.make_policy("scripted", config.env, team)
+                step = jax.jit(lambda o, k, p=policy: jax.vmap(p)(o, k))
+                seconds = _best(lambda s=step, t=team: s(obs[t], keys), 10 * repeats)
+                out[f"{team} ({form})"] = 1000 * seconds
+    finally:
+        policies._norm = shipped
+    return out
+
+
 def main() -> None:
     args = tyro.cli(Args)
+    scripted = [scripted_ms(p, args.backend, args.repeats) for p in args.presets]
+    print(json.dumps(scripted), flush=True)
     rows = []
     for preset in args.presets:
         for encoder in args.encoders:
@@ -93,7 +124,8 @@ def main() -> None:
         "date": datetime.date.today().isoformat(),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": machine, "runs": rows}, indent=1))
+    payload = {"machine": machine, "runs": rows, "scripted_policy_ms": scripted}
+    args.out.write_text(json.dumps(payload, indent=1))
     print(table(rows, args))
 
 

@@ -40,6 +40,11 @@ class Args:
     repeats: int = 3
     encoders: tuple[str, ...] = ENCODERS
     """Encoders to measure."""
+    peer: bool = True
+    """Also time the peer trainer: a standard JAX IPPO (tools/peer_ippo.py, after JaxMARL's
+    baseline) on JaxMARL's MPE simple_tag with 20 adversaries, 5 good agents and 8 obstacles,
+    64 envs x 32 steps, 2 epochs x 4 minibatches (the `bench` extra: pip install
+    'pe-mjx[bench]')."""
     reset_ablation: bool = True
     """Also time MIX with the env's reset computed on every step (`vmap(AutoResetWrapper.step)`)
     instead of only on steps where an arena finished (`step_batch`, what the trainer does)."""
@@ -93,9 +98,47 @@ def measure(config: ExperimentConfig, repeats: int, eager_reset: bool = False) -
     }
 
 
+def measure_peer(num_envs: int, unroll: int, repeats: int) -> dict:
+    """The peer IPPO's iteration on MPE simple_tag at 20-5-8 counts, timed like ours."""
+    import sys
+
+    from jaxmarl import make
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from peer_ippo import make_iteration
+
+    env = make("MPE_simple_tag_v3", num_good_agents=5, num_adversaries=20, num_obs=8)
+    init, iteration = make_iteration(env, num_envs, unroll)
+    state = jax.jit(init)(jax.random.key(0))
+    step = jax.jit(iteration)
+    tic = time.perf_counter()
+    jax.block_until_ready(step(state))
+    compile_s = time.perf_counter() - tic
+    t_iter = _time(lambda s: step(s)[1], state, repeats)
+    steps = num_envs * unroll
+    return {
+        "preset": "MPE simple_tag 20-5-8",
+        "encoder": "JaxMARL-style IPPO (MLP)",
+        "backend": "jaxmarl",
+        "num_envs": num_envs,
+        "unroll_length": unroll,
+        "reset": "auto (in step)",
+        "compile_s": compile_s,
+        "env_steps_per_s": steps / t_iter,
+        "agent_steps_per_s": steps * len(env.agents) / t_iter,
+        "share_env": None,
+        "share_forward": None,
+        "share_update": None,
+    }
+
+
 def main() -> None:
     args = tyro.cli(Args)
     runs = []
+    if args.peer:
+        result = measure_peer(64, 32, args.repeats)
+        print(json.dumps(result), flush=True)
+        runs.append(result)
     plan = [("20-5-8", e, args.backend, 64, 32, False) for e in args.encoders]
     if args.reset_ablation:
         plan.append(("20-5-8", "mix", args.backend, 64, 32, True))
@@ -131,11 +174,15 @@ def table(runs: list[dict], machine: dict) -> str:
         "env | forward | update | compile s |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+
+    def share(x):
+        return "-" if x is None else f"{x:.0%}"
+
     for r in runs:
         lines.append(
             f"| {r['preset']} | {r['encoder']} | {r['backend']} | {r['reset']} | {r['num_envs']}x"
             f"{r['unroll_length']} | {r['env_steps_per_s']:,.0f} | {r['agent_steps_per_s']:,.0f} "
-            f"| {r['share_env']:.0%} | {r['share_forward']:.0%} | {r['share_update']:.0%} "
+            f"| {share(r['share_env'])} | {share(r['share_forward'])} | {share(r['share_update'])} "
             f"| {r['compile_s']:.0f} |"
         )
     return "\n".join(lines)

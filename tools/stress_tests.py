@@ -25,7 +25,7 @@ import tyro
 
 @dataclasses.dataclass(frozen=True)
 class Args:
-    tests: tuple[str, ...]
+    tests: tyro.conf.Positional[tuple[str, ...]]
     """pytest node ids, e.g. tests/test_cli.py::test_train_interrupted_keeps_its_checkpoint..."""
     runs: int = 20
     load: int = 1
