@@ -35,6 +35,29 @@ def _exit_now(message: str, code: int) -> None:
     os._exit(code)
 
 
+INTERRUPT_GRACE_S = 30.0
+"""Seconds a command has, after Ctrl-C, to unwind (close its loggers, stop its server)."""
+
+
+def _on_interrupt(signum: int, frame: object) -> None:
+    """SIGINT/SIGTERM: raise KeyboardInterrupt, so that every command unwinds as it does on
+    Ctrl-C, and start a watchdog that ends the process if the unwinding has not finished within
+    `INTERRUPT_GRACE_S`. Under a loaded machine one Ctrl-C'd training run in 20 did not end
+    within 120 s (tools/stress_tests.py, 2026-12-02) although its checkpoints were complete:
+    something on the way out (a logger's queue, a thread join) waited forever. Checkpoints hold
+    interrupts back while they are written, so ending then loses nothing saved."""
+    import threading
+
+    watchdog = threading.Timer(
+        INTERRUPT_GRACE_S,
+        _exit_now,
+        args=(f"pe-mjx: interrupted (ended after {INTERRUPT_GRACE_S:.0f} s of unwinding)", 130),
+    )
+    watchdog.daemon = True
+    watchdog.start()
+    raise KeyboardInterrupt
+
+
 def _check_preset(name: str) -> None:
     if name not in PRESETS:
         _fail(f"--preset: unknown preset {name!r}; known presets: {', '.join(PRESETS)}")
@@ -788,7 +811,7 @@ def main(argv: list[str] | None = None) -> None:
     # its server down, training keeps its last atomic checkpoint), also when started from a shell
     # that left SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN).
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, signal.default_int_handler)
+        signal.signal(sig, _on_interrupt)
     for cls, fn in commands.values():
         if isinstance(args, cls):
             try:

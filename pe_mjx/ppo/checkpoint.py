@@ -195,7 +195,10 @@ def _interrupts_deferred() -> Iterator[None]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    if caught:
+    if caught:  # what the signal would have done: the command line's handler, else Ctrl-C
+        handler = previous[caught[0]]
+        if callable(handler) and handler is not signal.default_int_handler:
+            handler(caught[0], None)
         raise KeyboardInterrupt
 
 

@@ -391,3 +391,23 @@ def test_a_run_saved_by_a_version_with_another_arena_state_resumes_its_learners(
         assert _max_diff(straight.teams[team].opt_state, state.teams[team].opt_state) == 0.0
     new, _ = jax.jit(trainer.iteration)(state)
     assert int(new.iteration) == int(straight.iteration) + 1
+
+
+def test_an_interrupt_during_a_save_waits_for_the_save_then_stops_the_run():
+    """Ctrl-C inside a save is held back (orbax's threads hung when it landed midway) and raised
+    as KeyboardInterrupt once the block is done; the handlers are restored after."""
+    import os
+    import signal
+
+    from pe_mjx.ppo.checkpoint import _interrupts_deferred
+
+    before = signal.getsignal(signal.SIGINT)
+    finished = False
+    with pytest.raises(KeyboardInterrupt), _interrupts_deferred():
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGTERM)
+        finished = True  # reached: the signals did not interrupt the block
+    assert finished
+    assert signal.getsignal(signal.SIGINT) is before
+    with _interrupts_deferred():  # no signal: nothing raised
+        pass
