@@ -195,11 +195,13 @@ def _interrupts_deferred() -> Iterator[None]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    if caught:  # what the signal would have done: the command line's handler, else Ctrl-C
+    if caught:  # now do what the signal would have done
         handler = previous[caught[0]]
-        if callable(handler) and handler is not signal.default_int_handler:
+        if handler == signal.SIG_IGN:
+            return
+        if callable(handler):  # the command line's handler, or Python's default_int_handler
             handler(caught[0], None)
-        raise KeyboardInterrupt
+        raise KeyboardInterrupt  # SIG_DFL, or a handler that did not raise
 
 
 def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
