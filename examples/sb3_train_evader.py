@@ -22,8 +22,8 @@ from sb3_contrib import MaskablePPO
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from pe_mjx.adapters.pettingzoo import PettingZooEnv
-from pe_mjx.config import other_team
-from pe_mjx.policies import make_policy
+from pe_mjx.names import other_team
+from pe_mjx.policy.scripted import make_policy
 
 
 class OneTeamVecEnv(VecEnv):

@@ -23,7 +23,7 @@ __all__ = [
 def __getattr__(name: str):
     # Lazy: the training stack (flax, optax, orbax, brax) loads only when a policy is loaded.
     if name == "load_policy":
-        from pe_mjx.play import load_policy
+        from pe_mjx.policy.resolve import load_policy
 
         return load_policy
     raise AttributeError(f"module 'pe_mjx' has no attribute {name!r}")

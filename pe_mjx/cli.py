@@ -7,7 +7,6 @@ import dataclasses
 import io
 import os
 import re
-import signal
 import sys
 import tempfile
 import time
@@ -17,8 +16,9 @@ from typing import Annotated, Literal
 
 import tyro
 
+from pe_mjx import interrupts
 from pe_mjx.config import PRESETS, EnvConfig
-from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.experiment import Backend, ExperimentConfig
 from pe_mjx.names import BACKENDS, BUILTIN_POLICIES
 from pe_mjx.reproduce import ReproduceArgs
 
@@ -26,36 +26,6 @@ from pe_mjx.reproduce import ReproduceArgs
 def _fail(message: str) -> None:
     print(f"pe-mjx: error: {message}", file=sys.stderr)
     raise SystemExit(2)
-
-
-def _exit_now(message: str, code: int) -> None:
-    """Prints `message` on stderr and ends the process at once, joining no thread."""
-    print(message, file=sys.stderr, flush=True)
-    sys.stdout.flush()
-    os._exit(code)
-
-
-INTERRUPT_GRACE_S = 30.0
-"""Seconds a command has, after Ctrl-C, to unwind (close its loggers, stop its server)."""
-
-
-def _on_interrupt(signum: int, frame: object) -> None:
-    """SIGINT/SIGTERM: raise KeyboardInterrupt, so that every command unwinds as it does on
-    Ctrl-C, and start a watchdog that ends the process if the unwinding has not finished within
-    `INTERRUPT_GRACE_S`. Under a loaded machine one Ctrl-C'd training run in 20 did not end
-    within 120 s (tools/stress_tests.py, 2026-12-02) although its checkpoints were complete:
-    something on the way out (a logger's queue, a thread join) waited forever. Checkpoints hold
-    interrupts back while they are written, so ending then loses nothing saved."""
-    import threading
-
-    watchdog = threading.Timer(
-        INTERRUPT_GRACE_S,
-        _exit_now,
-        args=(f"pe-mjx: interrupted (ended after {INTERRUPT_GRACE_S:.0f} s of unwinding)", 130),
-    )
-    watchdog.daemon = True
-    watchdog.start()
-    raise KeyboardInterrupt
 
 
 def _check_preset(name: str) -> None:
@@ -80,7 +50,6 @@ def _check_backend(backend: str) -> None:
 
 
 PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
-BackendName = Literal["mjx", "kinematic"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,7 +74,7 @@ class DemoArgs:
     """Scenario preset (P-E-K: pursuers, evaders, obstacles)."""
     seed: int = 0
     """Seed of the arena draw (`jax.random.key`)."""
-    backend: BackendName = "kinematic"
+    backend: Backend = "kinematic"
     """Env backend: mjx (MuJoCo MJX physics) or kinematic (exact arcs, faster to compile)."""
     steps: int = 1000
     """Control steps at most (the episode may end earlier)."""
@@ -169,7 +138,7 @@ def train_defaults(argv: list[str]) -> TrainArgs:
     if "--resume" in found:
         if "--preset" in found or "--config" in found:
             _fail("--resume continues a run with its saved config; drop --preset/--config")
-        from pe_mjx.ppo.checkpoint import CheckpointError
+        from pe_mjx.policy.store import CheckpointError
         from pe_mjx.ppo.run import saved_config
 
         try:
@@ -185,7 +154,7 @@ def train_defaults(argv: list[str]) -> TrainArgs:
 
 def _check_run_learned(flag: str, spec: str, team: str) -> None:
     """The run `spec` (given as `flag`) has a readable checkpoint that learned `team`."""
-    from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
+    from pe_mjx.policy.store import CheckpointError, read_meta
 
     try:
         meta = read_meta(spec)
@@ -247,13 +216,13 @@ def run_train(args: TrainArgs) -> None:
                 viewer.stop()
     except CheckpointWriteError as err:
         # orbax may have left threads waiting forever: end without waiting for them
-        _exit_now(f"pe-mjx: error: {err}", 2)
+        interrupts.exit_now(f"pe-mjx: error: {err}", 2)
     except KeyboardInterrupt:
         # Everything worth keeping is on disk by now: checkpoints are written with interrupts
         # held back, and `train` closed its loggers while unwinding. The interpreter's own exit
         # would then join every thread orbax, jax or a logger left behind, and one stuck among
         # them hung a Ctrl-C'd run under load (a flaky CI test): end without waiting.
-        _exit_now("pe-mjx: interrupted", 130)
+        interrupts.exit_now("pe-mjx: interrupted", 130)
     except (CheckpointError, TrainingError) as err:
         _fail(str(err))
     _training_summary(out, state, config)
@@ -308,7 +277,7 @@ class ViewArgs:
     arenas: int | None = None
     """Arenas shown side by side in a grid (default 1; for a replay the file's first arenas,
     at most 16)."""
-    backend: BackendName = "mjx"
+    backend: Backend = "mjx"
     """Env backend: "mjx" or "kinematic" (exact arcs, compiles and runs faster)."""
     seed: int = 0
     """Seed of the arenas' draws and the policies' sampling."""
@@ -360,8 +329,8 @@ def _check_view_args(args: ViewArgs) -> None:
 
     if args.arenas is not None and not 1 <= args.arenas <= MAX_ARENAS:
         _fail(f"--arenas must be in 1..{MAX_ARENAS}, got {args.arenas}")
-    if args.backend not in ("mjx", "kinematic"):
-        _fail(f"--backend: unknown backend {args.backend!r}; expected mjx or kinematic")
+    if args.backend not in BACKENDS:
+        _fail(f"--backend: unknown backend {args.backend!r}; expected {' or '.join(BACKENDS)}")
     if not 0 <= args.seed <= SEED_MAX:
         _fail(f"--seed must be in 0..{SEED_MAX}, got {args.seed}")
     if not math.isfinite(args.speed) or args.speed < 0:
@@ -488,7 +457,7 @@ class EvaluateArgs:
     """Episodes per pairing (one vmapped batch)."""
     seed: int = 0
     """Seed of the trials: trial i of every pairing starts from the same arena."""
-    backend: BackendName = "mjx"
+    backend: Backend = "mjx"
     """Env backend: mjx (MuJoCo MJX physics) or kinematic (exact arcs, faster to compile)."""
     progress: bool = True
     """Show a progress bar over each pairing's trials (on a terminal, on stderr)."""
@@ -500,7 +469,7 @@ class EvaluateArgs:
 
 def _check_policy_specs(flag: str, specs: tuple[str, ...], team: str) -> None:
     """Each spec is built in or a readable run that learned `team`: checked before any compile."""
-    from pe_mjx.shipped import resolve_run
+    from pe_mjx.policy.shipped import resolve_run
 
     if not specs:
         _fail(f"{flag} needs at least one policy (scripted, random, a shipped policy or a run)")
@@ -623,8 +592,9 @@ def run_demo(args: DemoArgs) -> None:
 @dataclasses.dataclass(frozen=True)
 class ExportArgs:
     """Write one team's policy of a run as a self-contained file: StableHLO through `jax.export`
-    (the greedy policy, normaliser and parameters folded in), run by pe_mjx/export_loader.py with
-    only jax and numpy, e.g. on a robot's computer (README, "Running a policy on robots")."""
+    (the greedy policy, normaliser and parameters folded in), run by
+    pe_mjx/policy/export_loader.py with only jax and numpy, e.g. on a robot's computer (README,
+    "Running a policy on robots")."""
 
     run: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
     """A `pe-mjx train` run directory or a shipped policy's name (mix-20-5-8)."""
@@ -648,8 +618,8 @@ def run_export(args: ExportArgs) -> None:
         _fail(f"--output: directory {args.output.parent} does not exist")
     _check_writable_dir("--output", args.output.parent)
     from pe_mjx.config import get_preset
-    from pe_mjx.policy_export import export_policy, write_policy
-    from pe_mjx.ppo.checkpoint import CheckpointError
+    from pe_mjx.policy.export import export_policy, write_policy
+    from pe_mjx.policy.store import CheckpointError
 
     config = None if args.preset is None else get_preset(args.preset)
     try:
@@ -808,22 +778,20 @@ def main(argv: list[str] | None = None) -> None:
             lambda: tyro.extras.subcommand_cli_from_dict(subcommands, args=argv, prog="pe-mjx")
         )
     # Ctrl-C and `kill` stop every command the same way (a KeyboardInterrupt: the viewer shuts
-    # its server down, training keeps its last atomic checkpoint), also when started from a shell
-    # that left SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN).
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _on_interrupt)
+    # its server down, training keeps its last atomic checkpoint), with watchdogs.
     for cls, fn in commands.values():
         if isinstance(args, cls):
-            try:
-                fn(args)
-            except ValueError as err:
-                _fail(str(err))
-            except OSError as err:  # a file system failure while working: one line too
-                where = f"{err.filename}: " if err.filename else ""
-                _fail(f"{where}{err.strerror or err}")
-            except KeyboardInterrupt:
-                print("pe-mjx: interrupted", file=sys.stderr)
-                raise SystemExit(130) from None
+            with interrupts.installed():
+                try:
+                    fn(args)
+                except ValueError as err:
+                    _fail(str(err))
+                except OSError as err:  # a file system failure while working: one line too
+                    where = f"{err.filename}: " if err.filename else ""
+                    _fail(f"{where}{err.strerror or err}")
+                except KeyboardInterrupt:
+                    print("pe-mjx: interrupted", file=sys.stderr)
+                    raise SystemExit(130) from None
             return
 
 

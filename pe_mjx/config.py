@@ -7,9 +7,9 @@ import json
 import math
 import types
 import typing
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
-from pe_mjx.names import TEAMS, other_team  # noqa: F401  (re-exported for older imports)
+from pe_mjx.names import TEAMS
 
 T = TypeVar("T")
 
@@ -79,6 +79,8 @@ def from_dict(cls: type[T], data: Any, prefix: str = "") -> T:
     name = prefix.rstrip(".") or cls.__name__
     if not isinstance(data, dict):
         raise ValueError(f"invalid config: {name} must be an object, got {type(data).__name__}")
+    retired = getattr(cls, "RETIRED_FIELDS", ())
+    data = {k: v for k, v in data.items() if k not in retired}
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - set(fields))
@@ -131,10 +133,20 @@ class TeamConfig:
     """N_omega, number of discrete turn rates."""
     min_turning_radius: float = 0.0
     """Ackermann constraint (paper V): actions with v/|omega| < this are masked. 0 disables it."""
+    min_agents: int | None = None
+    """Draw the team's size per episode, uniformly in [min_agents, num_agents] (None: always
+    num_agents). The others are absent for the episode (`names.ABSENT`): parked outside the
+    arena, they never move, collide, earn reward or count in an outcome, and no one observes them
+    (their mask entries are False); arrays keep the num_agents shapes."""
 
     def __post_init__(self) -> None:
         check_finite(self)
         _check(self.num_agents >= 1, "num_agents", f"must be >= 1, got {self.num_agents}")
+        _check(
+            self.min_agents is None or 1 <= self.min_agents <= self.num_agents,
+            "min_agents",
+            f"must be in 1..num_agents ({self.num_agents}) or None, got {self.min_agents}",
+        )
         _check(self.radius > 0, "radius", f"must be > 0, got {self.radius}")
         _check(self.max_speed > 0, "max_speed", f"must be > 0, got {self.max_speed}")
         _check(self.max_turn_rate >= 0, "max_turn_rate", f"must be >= 0, got {self.max_turn_rate}")
@@ -169,6 +181,10 @@ class ArenaConfig:
     """Minimum gap between any two things (and to the wall) at spawn, in metres."""
     spawn_candidates: int = 64
     """Candidate positions drawn per entity by the placement sampler (first valid one wins)."""
+    min_obstacles: int | None = None
+    """Draw the obstacle count per episode, uniformly in [min_obstacles, num_obstacles] (None:
+    always num_obstacles); the others are absent (radius 0, outside the arena, masked out of
+    every observation)."""
 
     def __post_init__(self) -> None:
         check_finite(self)
@@ -182,6 +198,11 @@ class ArenaConfig:
         )
         _check(self.spawn_clearance >= 0, "arena.spawn_clearance", "must be >= 0")
         _check(self.spawn_candidates >= 1, "arena.spawn_candidates", "must be >= 1")
+        _check(
+            self.min_obstacles is None or 0 <= self.min_obstacles <= self.num_obstacles,
+            "arena.min_obstacles",
+            f"must be in 0..num_obstacles ({self.num_obstacles}) or None, got {self.min_obstacles}",
+        )
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -270,9 +291,10 @@ class EnvConfig:
     """Look-ahead of the action mask in seconds."""
     mask_points: int = 4
     """Points checked along each action's arc within the look-ahead."""
-    actuator_time_constant: float = 0.005
-    """Not used (kept so that saved configs load): the MJX velocity actuators are deadbeat, since
-    a lag lets agents coast past the arc that the action mask checked (docs/design.md)."""
+    RETIRED_FIELDS: ClassVar[tuple[str, ...]] = ("actuator_time_constant",)
+    """Fields of older configs that are read and dropped: `actuator_time_constant` went when the
+    MJX velocity actuators became deadbeat (a lag let agents coast past the arc that the action
+    mask checked; docs/design.md), so saved runs and shipped policies still load."""
 
     def __post_init__(self) -> None:
         check_finite(self)
@@ -293,7 +315,6 @@ class EnvConfig:
         )
         _check(self.mask_horizon >= 0, "mask_horizon", "must be >= 0")
         _check(self.mask_points >= 1, "mask_points", "must be >= 1")
-        _check(self.actuator_time_constant > 0, "actuator_time_constant", "must be > 0")
         self._check_placeable()
 
     def _check_placeable(self) -> None:

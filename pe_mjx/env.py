@@ -34,37 +34,10 @@ from flax import struct
 
 from pe_mjx import scene
 from pe_mjx.config import EnvConfig, get_preset
-
-# The game's names and sizes live in pe_mjx.names, the stages' helpers in pe_mjx.stages;
-# env.<NAME> stays importable for older code.
-from pe_mjx.names import (  # noqa: F401
-    ACTIVE,
-    AGENT_FEATURES,
-    BACKENDS,
-    CAPTURE,
-    CAUSE_NAMES,
-    EVADER_TERMS,
-    OBSTACLE,
-    OBSTACLE_FEATURES,
-    OPPONENT,
-    OWN_FEATURES,
-    PURSUER_TERMS,
-    TEAMMATE,
-    TEAMS,
-    WALL,
-)
+from pe_mjx.names import ABSENT, ACTIVE, BACKENDS, TEAMS
 from pe_mjx.stages import dynamics, events, geometry, masks, metrics, observations, placement
 from pe_mjx.stages import rewards as reward_stage
-from pe_mjx.stages.dynamics import action_table, arc_offsets  # noqa: F401
-from pe_mjx.stages.geometry import (  # noqa: F401
-    bearing,
-    cos_sin,
-    drop_diagonal,
-    to_heading,
-    wrap_angle,
-)
-from pe_mjx.stages.masks import MASK_MARGIN  # noqa: F401
-from pe_mjx.stages.rewards import collision_reward  # noqa: F401
+from pe_mjx.stages.geometry import wrap_angle
 from pe_mjx.stages.world import World
 
 # MJX poses agree with the kinematic backend's within this (metres and radians) for the same
@@ -138,7 +111,7 @@ class PursuitEvasionEnv:
         """The observations and action masks `step` would give for `world` (SPEC 2.5, 2.4).
 
         Pure and jittable; only the poses, velocities, active flags and obstacles are read. For
-        controllers that build a `World` from measured poses (`pe_mjx.deploy`).
+        controllers that build a `World` from measured poses (`pe_mjx.policy.deploy`).
         """
         geom = geometry.geometry(world.pos, world.yaw, world.obstacles)
         return observations.observe(self.config, self.mask_tables, world, geom)
@@ -154,8 +127,8 @@ class PursuitEvasionEnv:
             pos=placed.pos,
             yaw=placed.yaw,
             vel=jnp.zeros((n, 2)),
-            active=jnp.ones(n, dtype=bool),
-            cause=jnp.zeros(n, dtype=jnp.int32),
+            active=placed.present,
+            cause=jnp.where(placed.present, ACTIVE, ABSENT).astype(jnp.int32),
             distance=jnp.zeros(n),
             captures=jnp.zeros(n, dtype=jnp.int32),
             obstacles=placed.obstacles,
@@ -166,7 +139,7 @@ class PursuitEvasionEnv:
             qpos = jnp.concatenate([placed.pos, placed.yaw[:, None]], axis=1).reshape(-1)
             physics = self.mjx_data0.replace(qpos=qpos, qvel=jnp.zeros_like(qpos))
         zeros = {t: jnp.zeros(self.config.team(t).num_agents) for t in TEAMS}
-        valid = {t: jnp.ones(self.config.team(t).num_agents, dtype=bool) for t in TEAMS}
+        valid = self.split(placed.present)
         step_metrics = metrics.step_metrics(
             self.config,
             world,
@@ -250,7 +223,8 @@ class PursuitEvasionEnv:
         # Offsets and distances are computed once and shared by events, rewards and observations.
         geom = geometry.geometry(pos, yaw, w.obstacles)
         ev = events.events(cfg, geom, was_active, w.obstacles)
-        active, cause = ev.active, jnp.where(w.cause > 0, w.cause, ev.cause)
+        # The first cause sticks (an absent agent keeps ABSENT: it is never active).
+        active, cause = ev.active, jnp.where(w.cause != ACTIVE, w.cause, ev.cause)
         vel = jnp.where(active[:, None], motion.vel, 0.0)
         if physics is not None:
             # qpos is the world pose with the yaw wrapped, as in the kinematic backend (an

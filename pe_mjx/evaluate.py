@@ -1,7 +1,7 @@
 """The paper's evaluation (IV-B to IV-E): cross-confrontation matrices, its four metrics, reports.
 
 A *policy spec* is "scripted", "random", a run directory of `pe-mjx train` or a shipped policy
-(resolved by `pe_mjx.play.resolve_policy`). Every pursuer spec plays every evader spec for
+(resolved by `pe_mjx.policy.resolve.resolve_policy`). Every pursuer spec plays every evader spec for
 `trials` episodes, all trials of a pairing as one vmapped batch; trial i of every pairing starts
 from the same arena (reset key i), so pairings are compared on equal ground. Metrics per trial
 (SPEC 4), with m pursuers and n evaders, m' and n' incapacitated:
@@ -40,7 +40,8 @@ from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.episodes import play_episodes
 from pe_mjx.names import CAUSE_NAMES
 from pe_mjx.outcomes import outcome_counts
-from pe_mjx.play import PlayPolicy, resolve_policy
+from pe_mjx.policy.core import Policy
+from pe_mjx.policy.resolve import resolve_policy
 
 TRIAL_FIELDS = ("success_rate", "travel_distance", "pursuit_cost", "evaders_incapacitated")
 TRIAL_FIELDS += ("length",)
@@ -109,8 +110,8 @@ def summarize(trials: dict[str, np.ndarray]) -> dict[str, Any]:
 @dataclasses.dataclass
 class PairingResult:
     index: int
-    pursuer: PlayPolicy
-    evader: PlayPolicy
+    pursuer: Policy
+    evader: Policy
     trials: dict[str, np.ndarray]
     summary: dict[str, Any]
     seconds: float
@@ -179,7 +180,7 @@ class _Games:
         self.compiled: dict[tuple, Callable[..., Any]] = {}
         self.shapes_run: set[tuple] = set()
 
-    def _fn(self, p_spec: PlayPolicy, e_spec: PlayPolicy, record: bool) -> Callable[..., Any]:
+    def _fn(self, p_spec: Policy, e_spec: Policy, record: bool) -> Callable[..., Any]:
         key = (p_spec.shape_key, e_spec.shape_key, record)
         if key not in self.compiled:
             p_apply, e_apply, env = p_spec.apply, e_spec.apply, self.env
@@ -534,7 +535,7 @@ def _evaluate_into(
 
 
 __all__ = [
-    "PlayPolicy",
+    "Policy",
     "cross_confrontation",
     "evaluate",
     "markdown_table",

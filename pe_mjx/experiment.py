@@ -28,7 +28,6 @@ from typing import Any, Literal
 
 from pe_mjx.config import PRESETS, EnvConfig, check_finite, from_dict, get_preset, merge, to_dict
 from pe_mjx.names import BACKENDS, ENCODERS, TEAMS, other_team
-from pe_mjx.names import BUILTIN_POLICIES as BUILTIN_POLICIES  # re-exported for older imports
 
 Encoder = Literal["mix", "mean", "birnn", "mlp"]
 Backend = Literal["mjx", "kinematic"]

@@ -12,7 +12,7 @@ from pe_mjx.config import get_preset
 from pe_mjx.env import PursuitEvasionEnv, State
 from pe_mjx.names import CAUSE_NAMES, TEAMS
 from pe_mjx.outcomes import outcome_counts
-from pe_mjx.policies import make_policy
+from pe_mjx.policy.scripted import make_policy
 from pe_mjx.rollout import rollout
 
 

@@ -16,7 +16,7 @@ ENCODERS = ("mix", "mean", "birnn", "mlp")
 """Network encoders: the paper's Mix-Attention and its three baselines."""
 
 BUILTIN_POLICIES = ("scripted", "random")
-"""Policy specs that need no checkpoint (`pe_mjx.policies.POLICIES`)."""
+"""Policy specs that need no checkpoint (`pe_mjx.policy.scripted.POLICIES`)."""
 
 # Observation layout (SPEC 2.5): one feature vector per entity, per observing agent.
 OWN_FEATURES = 5
@@ -52,6 +52,9 @@ CAUSE_NAMES = {
     OPPONENT: "opponent",
 }
 """Cause code -> name, for the codes of incapacitated agents."""
+ABSENT = -1
+"""`World.cause` of an agent left out of the episode (`TeamConfig.min_agents`): it is inactive
+from the start, and no cause, outcome or observation counts it."""
 
 # Reward terms (eqs. (3) and (4)), each logged as `reward/<team>/<term>`.
 PURSUER_TERMS = ("wall", "obstacle", "teammate", "pursuit", "capture", "opponent")
@@ -67,6 +70,7 @@ def other_team(team: str) -> str:
 
 
 __all__ = [
+    "ABSENT",
     "ACTIVE",
     "AGENT_FEATURES",
     "BACKENDS",

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pe_mjx.names import ACTIVE, CAUSE_NAMES
+from pe_mjx.names import ABSENT, ACTIVE, CAUSE_NAMES
 
 
 def outcome_counts(cause: Any, distance: Any, num_pursuers: int) -> dict[str, Any]:
@@ -25,19 +25,24 @@ def outcome_counts(cause: Any, distance: Any, num_pursuers: int) -> dict[str, An
       cause of `names.CAUSE_NAMES`), ``pursuers_active``, ``evaders_active``,
       ``evaders_incapacitated`` (n'), ``success_rate`` (n'/n, SPEC 4: an evader counts whether it
       was captured or crashed), ``pursuit_cost`` (m', the pursuers downed) and
-      ``travel_distance`` (the pursuers' mean distance travelled).
+      ``travel_distance`` (the pursuers' mean distance travelled). Agents absent from the
+      episode (`names.ABSENT`, `TeamConfig.min_agents`) count nowhere: n and m are the agents
+      present (``pursuers_present``, ``evaders_present``).
     """
     p = num_pursuers
     out: dict[str, Any] = {}
+    present = {}
     for who, codes in (("pursuers", cause[..., :p]), ("evaders", cause[..., p:])):
         for code, name in CAUSE_NAMES.items():
             out[f"{who}_{name}"] = (codes == code).sum(axis=-1)
         out[f"{who}_active"] = (codes == ACTIVE).sum(axis=-1)
-    num_evaders = cause.shape[-1] - p
-    out["evaders_incapacitated"] = num_evaders - out["evaders_active"]
-    out["success_rate"] = out["evaders_incapacitated"] / num_evaders
-    out["pursuit_cost"] = p - out["pursuers_active"]
-    out["travel_distance"] = distance[..., :p].mean(axis=-1)
+        present[who] = codes != ABSENT
+        out[f"{who}_present"] = present[who].sum(axis=-1)
+    out["evaders_incapacitated"] = out["evaders_present"] - out["evaders_active"]
+    out["success_rate"] = out["evaders_incapacitated"] / out["evaders_present"]
+    out["pursuit_cost"] = out["pursuers_present"] - out["pursuers_active"]
+    travelled = (distance[..., :p] * present["pursuers"]).sum(axis=-1)
+    out["travel_distance"] = travelled / out["pursuers_present"]
     return out
 
 

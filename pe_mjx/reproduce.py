@@ -24,6 +24,7 @@ import re
 from pathlib import Path
 from typing import Literal
 
+from pe_mjx.experiment import Backend
 from pe_mjx.names import ENCODERS, TEAMS
 from pe_mjx.paper import ENV_STEPS, PAPER, TABLES, paper_runs
 
@@ -54,7 +55,7 @@ class ReproduceArgs:
     """The paper's tables to reproduce."""
     trials: int = 100
     """Episodes per pairing."""
-    backend: Literal["mjx", "kinematic"] = "mjx"
+    backend: Backend = "mjx"
     """Env backend for training and evaluation."""
     seed: int = 0
     """Seed of the evaluation trials."""

@@ -1,22 +1,23 @@
 """Acting for both teams and playing episodes: one home for the loop every caller runs.
 
 `act` asks each team's policy for its actions (the key split every episode uses), `freeze` keeps
-finished arenas as they ended, and `rollout` plays one arena to its end, jittable and vmappable.
-`episodes.play_episodes` (many arenas, recording) and the viewer's `LiveRun` build on these.
+finished arenas as they ended, and `rollout` plays one arena to its end, jittable and vmappable:
+a `while_loop` that stops at `done`, or with `record=True` a `scan` of fixed length that also
+returns every frame. Both run the same step (`act`, then `env.step`), so an arena plays the same
+episode whichever is asked for. `episodes.play_episodes` (many arenas) and the viewer's `LiveRun`
+build on these; the trainer's rollout is its own (it also keeps log-probabilities and values).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from pe_mjx.env import PursuitEvasionEnv, State
 from pe_mjx.names import TEAMS
-
-Policy = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
-"""`(obs of one team, rng) -> int32 actions`, obs with leading dims [A] for one arena."""
+from pe_mjx.policy.core import Policy
 
 
 def act(
@@ -54,13 +55,16 @@ def rollout(
     rng: jax.Array,
     steps: int | jax.Array,
     state: State | None = None,
-) -> State:
-    """Plays one arena until it is done or `steps` control steps were taken; returns the last state.
+    returns: bool = False,
+    record: bool = False,
+) -> Any:
+    """Plays one arena until it is done or `steps` control steps were taken.
 
     Pure and jittable (``env`` and ``policies`` are static: close over them or use
     ``functools.partial``; ``steps`` may be a Python int or a traced int32 scalar, so one compile
-    serves every budget); ``jax.vmap`` it over ``rng`` (and ``state``) for many arenas. Under
-    ``vmap`` finished arenas are frozen while the others play on.
+    serves every budget, except with ``record``, whose frames need a Python int); ``jax.vmap`` it
+    over ``rng`` (and ``state``) for many arenas. Under ``vmap`` finished arenas are frozen while
+    the others play on.
 
     Args:
       env: the env (not auto-resetting: the loop stops at ``done``).
@@ -68,32 +72,65 @@ def rollout(
       rng: key; when ``state`` is None the episode starts from ``env.reset`` of a key split off it.
       steps: at most this many control steps (the env's own time limit also ends the episode).
       state: optional start state (for example from ``env.reset_to``).
+      returns: also return each agent's episodic return: team -> float32 [A], the sum of its
+        (unscaled) rewards over the episode (0 after it is down).
+      record: also return the trajectory: ``poses`` [steps + 1, N, 3] and ``active``
+        [steps + 1, N] (after the arena ended, its frames repeat its final state).
 
     Returns:
-      The state after the last step taken: ``state.world.step`` steps, ``state.done`` set if the
-      episode ended (terminated, or truncated at ``max_steps``).
+      The state after the last step taken (``state.done`` set if the episode ended: terminated,
+      or truncated at ``max_steps``); with `record` and/or `returns` a tuple ``(final,
+      trajectory)``, ``(final, returns)`` or ``(final, trajectory, returns)``.
     """
     missing = set(TEAMS) - set(policies)
     if missing:
         raise ValueError(f"rollout: policies missing for teams {sorted(missing)}")
     if isinstance(steps, int) and steps < 0:
         raise ValueError(f"rollout: steps must be >= 0, got {steps}")
+    if record and not isinstance(steps, int):
+        raise ValueError("rollout: record=True needs steps as a Python int (the frame count)")
     rng, reset_rng = jax.random.split(rng)
     if state is None:
         state = env.reset(reset_rng)
     start = state.world.step
+    ret = {t: jnp.zeros_like(state.reward[t]) for t in TEAMS}
 
-    def cond(carry: tuple[State, jax.Array]) -> jax.Array:
-        s, _ = carry
+    def step(s: State, key: jax.Array, ret: dict, playing: jax.Array):
+        actions, key = act(policies, s.obs, key)
+        nxt = env.step(s, actions)
+        if record:  # a fixed-length scan: an arena that is done keeps its last state
+            nxt = freeze(s, nxt)
+        # The env's reward is already 0 for agents that were down before the step.
+        ret = {t: ret[t] + jnp.where(playing, nxt.reward[t], 0.0) for t in TEAMS}
+        return nxt, key, ret
+
+    if record:
+
+        def scan_body(carry, _):
+            s, key, r = carry
+            s, key, r = step(s, key, r, s.done == 0)
+            return (s, key, r), _pose(s)
+
+        (final, _, ret), frames = jax.lax.scan(scan_body, (state, rng, ret), None, length=steps)
+        first = _pose(state)
+        trajectory = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, frames)
+        return (final, trajectory, ret) if returns else (final, trajectory)
+
+    def cond(carry: tuple[State, jax.Array, dict]) -> jax.Array:
+        s = carry[0]
         return (s.world.step - start < steps) & (s.done == 0)
 
-    def body(carry: tuple[State, jax.Array]) -> tuple[State, jax.Array]:
-        s, key = carry
-        actions, key = act(policies, s.obs, key)
-        return env.step(s, actions), key
+    def body(carry: tuple[State, jax.Array, dict]) -> tuple[State, jax.Array, dict]:
+        s, key, r = carry
+        return step(s, key, r, jnp.bool_(True))
 
-    final, _ = jax.lax.while_loop(cond, body, (state, rng))
-    return final
+    final, _, ret = jax.lax.while_loop(cond, body, (state, rng, ret))
+    return (final, ret) if returns else final
 
 
-__all__ = ["Policy", "act", "freeze", "rollout"]
+def _pose(s: State) -> dict[str, jax.Array]:
+    w = s.world
+    return {"poses": jnp.concatenate([w.pos, w.yaw[..., None]], axis=-1), "active": w.active}
+
+
+__all__ = ["act", "freeze", "rollout"]

@@ -102,8 +102,8 @@ def _add_robot(
     # Deadbeat velocity servos: with gain kv = inertia / physics_dt, one semi-implicit Euler step
     # takes the joint velocity from whatever it was to exactly the command (qvel + dt kv (ctrl -
     # qvel) / inertia = ctrl), so the env's chord commands put every physics step on the
-    # commanded arc (docs/design.md, "MJX actuation"). EnvConfig.actuator_time_constant is not
-    # used: a lag makes agents coast past the arc that the action mask checked.
+    # commanded arc (docs/design.md, "MJX actuation"); a lag made agents coast past the arc that
+    # the action mask checked.
     dt = config.physics_dt
     for axis_name, gain in (
         ("x", ROBOT_MASS / dt),

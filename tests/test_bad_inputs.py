@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from pe_mjx.cli import main
+from pe_mjx.policy.shipped import policies_dir
 from pe_mjx.ppo.checkpoint import lock_run
-from pe_mjx.shipped import policies_dir
 
 BIG = str(2**63)
 HUGE = str(2**64)

@@ -18,8 +18,19 @@ from hypothesis import strategies as st
 
 from pe_mjx import env as pe_env
 from pe_mjx.config import PRESETS, get_preset
-from pe_mjx.env import CAPTURE, OBSTACLE, OPPONENT, TEAMMATE, WALL, AutoResetWrapper
-from pe_mjx.names import OBSERVATION_KEYS
+from pe_mjx.env import AutoResetWrapper
+from pe_mjx.names import (
+    AGENT_FEATURES,
+    CAPTURE,
+    OBSERVATION_KEYS,
+    OBSTACLE,
+    OBSTACLE_FEATURES,
+    OPPONENT,
+    OWN_FEATURES,
+    TEAMMATE,
+    WALL,
+)
+from pe_mjx.stages.dynamics import action_table
 from tests.conftest import (
     E_FULL,
     E_STOP,
@@ -67,10 +78,10 @@ def check_contract(env: pe_env.PursuitEvasionEnv, state: pe_env.State, batch: tu
         obs = obs_all[team]
         assert set(obs) == OBS_KEYS
         shapes = {
-            "own": (a, pe_env.OWN_FEATURES),
-            "teammates": (a, a - 1, pe_env.AGENT_FEATURES),
-            "opponents": (a, o, pe_env.AGENT_FEATURES),
-            "obstacles": (a, k, pe_env.OBSTACLE_FEATURES),
+            "own": (a, OWN_FEATURES),
+            "teammates": (a, a - 1, AGENT_FEATURES),
+            "opponents": (a, o, AGENT_FEATURES),
+            "obstacles": (a, k, OBSTACLE_FEATURES),
             "teammate_mask": (a, a - 1),
             "opponent_mask": (a, o),
             "obstacle_mask": (a, k),
@@ -348,7 +359,7 @@ def test_masks_never_allow_wall_or_obstacle_hit(get_compiled):
         assert mask_p.any(-1).all() and mask_e.any(-1).all()
         masked_somewhere += (~mask_p).any(-1).sum() + (~mask_e).any(-1).sum()
         # stop actions are always valid for an agent that is not touching
-        v_p = pe_env.action_table(c.config.pursuer)[0]
+        v_p = action_table(c.config.pursuer)[0]
         assert mask_p[:, :, v_p == 0].all()
     assert masked_somewhere > 100  # the scenes do exercise the mask
 
@@ -357,7 +368,7 @@ def test_masks_leave_stop_actions_when_touching(get_compiled):
     c = get_compiled(SMALL, "kinematic")
     # pursuer 0 overlaps the obstacle, pursuer 1 overlaps the wall, the evader is free
     s = c.place([[0.35, 0, 0], [1.95, 0.0, 0]], [[-1.0, 0.5, 0]], [[0.0, 0.0, 0.3]])
-    v_p = pe_env.action_table(c.config.pursuer)[0]
+    v_p = action_table(c.config.pursuer)[0]
     mask = np.asarray(s.obs["pursuer"]["action_mask"])
     np.testing.assert_array_equal(mask[0], v_p == 0)
     np.testing.assert_array_equal(mask[1], v_p == 0)

@@ -6,10 +6,10 @@ import jax
 import numpy as np
 
 from pe_mjx import get_preset
-from pe_mjx.config import TEAMS
 from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.episodes import play_episodes
-from pe_mjx.policies import make_policy
+from pe_mjx.names import TEAMS
+from pe_mjx.policy.scripted import make_policy
 
 
 def test_returns_sum_each_agents_rewards_over_its_episode():

@@ -14,7 +14,7 @@ import pytest
 import pe_mjx
 from pe_mjx import evaluate as ev
 from pe_mjx import trajectory
-from pe_mjx.env import CAPTURE, OBSTACLE, TEAMMATE, WALL
+from pe_mjx.names import CAPTURE, OBSTACLE, TEAMMATE, WALL
 
 
 def test_paper_row_per_evader_cost():

@@ -1,6 +1,7 @@
-"""The package's layers: data flows config -> scene -> env -> policies/networks -> trainer ->
-checkpoints -> play -> evaluator and viewer, and no module imports one above it (docs/design.md,
-Layout). Every import counts, function-level ones too, so a lazy import cannot hide a cycle."""
+"""The package's layers: data flows config -> scene -> env -> networks -> policy -> play (episode
+loops, adapters) -> trainer -> evaluator and viewer -> cli, and no module imports one above it
+(docs/design.md, Layout). Every import counts, function-level ones too, so a lazy import cannot
+hide a cycle."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "pe_mjx"
 
 # Lower layers never import higher ones; modules of one layer may import each other (no cycles).
 LAYERS: dict[str, tuple[str, ...]] = {
-    "names": ("names", "_quiet", "shipped", "export_loader"),
+    "names": ("names", "_quiet", "interrupts"),
     "config": ("config", "experiment", "paper"),
     "scene": ("scene",),
     "env": (
@@ -27,27 +28,36 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "stages.masks",
         "stages.observations",
         "stages.metrics",
+        "export",
+        "trajectory",
     ),
-    "policies": (
-        "policies",
-        "networks",
+    "networks": ("networks",),
+    # Everything that acts: the one `Policy` type, builtin and learned policies, the store that
+    # reads trained ones, the resolver, export and deployment. It reads checkpoints but never
+    # imports the trainer.
+    "policy": (
+        "policy",
+        "policy.core",
+        "policy.export_loader",
+        "policy.shipped",
+        "policy.scripted",
+        "policy.inference",
+        "policy.store",
+        "policy.resolve",
+        "policy.export",
+        "policy.deploy",
+    ),
+    "play": (
         "rollout",
         "episodes",
         "match",
-        "trajectory",
-        "export",
-        "deploy",
         "adapters",
         "adapters.common",
         "adapters.jaxmarl",
         "adapters.pettingzoo",
-        "agents",
     ),
-    "trainer": ("ppo", "ppo.losses", "ppo.train"),
-    "checkpoints": ("ppo.checkpoint", "policy_export"),
-    "play": ("play",),
+    "trainer": ("ppo", "ppo.losses", "ppo.train", "ppo.checkpoint", "ppo.run"),
     "apps": (
-        "ppo.run",
         "evaluate",
         "plots",
         "reproduce",

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from pe_mjx.config import get_preset
-from pe_mjx.env import CAUSE_NAMES
 from pe_mjx.match import play_scripted_match, rollout
-from pe_mjx.policies import make_policy
+from pe_mjx.names import CAUSE_NAMES
+from pe_mjx.policy.scripted import make_policy
 
 PRESET = "4-1-2"
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import jax
 import pytest
 
-from pe_mjx import agents, env, experiment, names, networks, policies, trajectory
+from pe_mjx import env, names, networks, trajectory
+from pe_mjx.policy import inference, scripted
 
 
 def test_names_imports_nothing_but_the_standard_library():
@@ -23,11 +24,9 @@ def test_names_imports_nothing_but_the_standard_library():
 
 
 def test_other_modules_read_the_same_objects():
-    assert env.CAUSE_NAMES is names.CAUSE_NAMES and env.BACKENDS is names.BACKENDS
-    assert env.EVADER_TERMS is names.EVADER_TERMS
-    assert networks.MASK_KEYS is names.MASK_KEYS and agents.MASK_KEYS is names.MASK_KEYS
-    assert experiment.BUILTIN_POLICIES is names.BUILTIN_POLICIES
-    assert tuple(policies.POLICIES) == names.BUILTIN_POLICIES
+    assert env.BACKENDS is names.BACKENDS
+    assert networks.MASK_KEYS is names.MASK_KEYS and inference.MASK_KEYS is names.MASK_KEYS
+    assert tuple(scripted.POLICIES) == names.BUILTIN_POLICIES
     assert trajectory.NUM_CAUSES == names.NUM_CAUSES == len(names.CAUSE_NAMES) + 1
 
 
@@ -39,7 +38,7 @@ def test_sizes_match_the_env_observation(team):
     for key, size in names.FEATURES.items():
         assert obs[key].shape[-1] == size
     assert set(names.MASK_KEYS.values()) < set(obs)
-    dummy = agents.dummy_obs(config, team)
+    dummy = inference.dummy_obs(config, team)
     assert {k: v.shape for k, v in dummy.items()} == {k: v.shape for k, v in obs.items()}
 
 

@@ -26,15 +26,10 @@ import numpy as np
 import pytest
 
 from pe_mjx.config import get_preset
-from pe_mjx.env import (
-    MJX_POSE_TOL,
-    OBSTACLE,
-    WALL,
-    PursuitEvasionEnv,
-    action_table,
-    wrap_angle,
-)
-from pe_mjx.stages.geometry import per_agent
+from pe_mjx.env import MJX_POSE_TOL, PursuitEvasionEnv
+from pe_mjx.names import OBSTACLE, WALL
+from pe_mjx.stages.dynamics import action_table
+from pe_mjx.stages.geometry import per_agent, wrap_angle
 
 PAPER_PRESETS = ("16-4-4", "20-5-8", "24-6-12")
 BACKENDS = ("kinematic", "mjx")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pe_mjx.config import get_preset
-from pe_mjx.env import CAPTURE
+from pe_mjx.names import CAPTURE
 from pe_mjx.trajectory import (
     FORMAT_VERSION,
     Trajectory,
@@ -182,10 +182,10 @@ def test_recorded_episodes_round_trip(tmp_path):
     """The evaluator's path: play_episodes(record=True) -> from_episodes -> save -> load."""
     import jax
 
-    from pe_mjx.config import TEAMS
     from pe_mjx.env import PursuitEvasionEnv
     from pe_mjx.episodes import play_episodes
-    from pe_mjx.policies import make_policy
+    from pe_mjx.names import TEAMS
+    from pe_mjx.policy.scripted import make_policy
 
     config = get_preset(PRESET).replace(max_steps=12)
     env = PursuitEvasionEnv(config, backend="kinematic")

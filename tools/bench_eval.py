@@ -10,7 +10,7 @@ their episodes last the whole `max_steps`: the figures are an upper bound of wha
 pays (its own share is logged as `perf/eval_share` in TensorBoard).
 
 It also times one step of each scripted policy over 32 arenas (the evaluation's opponents) as
-shipped and with `jnp.linalg.norm` in place of `pe_mjx.policies._norm`, the form they had
+shipped and with `jnp.linalg.norm` in place of `pe_mjx.policy.scripted._norm`, the form they had
 before 2026-12-02, so that the speed-up is measured in one run.
 """
 
@@ -28,11 +28,11 @@ import jax
 import jax.numpy as jnp
 import tyro
 
-from pe_mjx import policies
 from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.experiment import ExperimentConfig
 from pe_mjx.names import ENCODERS
 from pe_mjx.paper import paper_experiment
+from pe_mjx.policy import scripted
 from pe_mjx.ppo.train import Trainer
 
 
@@ -88,19 +88,19 @@ def scripted_ms(preset: str, backend: str, repeats: int) -> dict:
     env = PursuitEvasionEnv(config.env, backend=backend)
     keys = jax.random.split(jax.random.key(0), 32)
     obs = jax.vmap(env.reset)(keys).obs
-    shipped = policies._norm
+    shipped = scripted._norm
     forms = {"per component": shipped, "linalg.norm": lambda v: jnp.linalg.norm(v, axis=-1)}
     out: dict = {"preset": preset, "arenas": 32}
     try:
         for form, norm in forms.items():
-            policies._norm = norm  # read when the policy is traced
+            scripted._norm = norm  # read when the policy is traced
             for team in ("pursuer", "evader"):
-                policy = policies.make_policy("scripted", config.env, team)
+                policy = scripted.make_policy("scripted", config.env, team)
                 step = jax.jit(lambda o, k, p=policy: jax.vmap(p)(o, k))
                 seconds = _best(lambda s=step, t=team: s(obs[t], keys), 10 * repeats)
                 out[f"{team} ({form})"] = 1000 * seconds
     finally:
-        policies._norm = shipped
+        scripted._norm = shipped
     return out
 
 

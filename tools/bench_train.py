@@ -26,7 +26,7 @@ import tyro
 from pe_mjx.experiment import ExperimentConfig
 from pe_mjx.names import ENCODERS
 from pe_mjx.paper import paper_experiment
-from pe_mjx.policies import make_policy
+from pe_mjx.policy.scripted import make_policy
 from pe_mjx.ppo.train import Trainer
 
 

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import tyro
 
+from pe_mjx.policy.shipped import policies_dir
 from pe_mjx.ppo import checkpoint
-from pe_mjx.shipped import policies_dir
 
 ROOT = Path(__file__).resolve().parent.parent
 KEEP = ("_CHECKPOINT_METADATA", "commit_success.txt", "meta", "policy_pursuer", "policy_evader")

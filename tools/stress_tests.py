@@ -52,7 +52,7 @@ def main() -> None:
             cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *args.tests]
             try:
                 proc = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
-                code, tail = proc.returncode, proc.stdout[-400:]
+                code, tail = proc.returncode, proc.stdout[-12000:]
             except subprocess.TimeoutExpired:
                 code, tail = "timeout", ""
             row = {

@@ -22,7 +22,7 @@ psi, sin psi)` for a unicycle) are estimated from each robot's pose history by a
 * velocity = v (cos psi_1, sin psi_1), along the newest heading, as in the env; zero for a robot
   with a single pose (as at reset) and for a robot that is down (as the env has it).
 
-The estimate is exact when the commands were constant over the window (tests/test_deploy.py:
+The estimate is exact when the commands were constant over the window (tests/policy/test_deploy.py:
 a simulated episode fed at the control rate gives the env's observations within 1e-4). A longer
 window averages pose noise (the error is about sqrt(2) sigma / window) at the cost of lag: after
 a command change, the estimate mixes the two arcs until the window has passed.
@@ -43,12 +43,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from pe_mjx.config import EnvConfig
-from pe_mjx.env import PursuitEvasionEnv, World, action_table
+from pe_mjx.env import PursuitEvasionEnv, World
 from pe_mjx.names import ACTIVE, OBSTACLE, TEAMS
+from pe_mjx.stages.dynamics import action_table
 
-Policy = Callable[[dict[str, Any], jax.Array], Any]
-"""(one team's observation dict, rng) -> int32 [A] actions, as `pe_mjx.load_policy` returns, the
-scripted policies of `pe_mjx.policies`, or an exported policy (`pe_mjx.export_loader`)."""
+Actor = Callable[[dict[str, Any], jax.Array], Any]
+"""(one team's observation dict, rng) -> int32 [A] actions: a `pe_mjx.policy.Policy` (learned or
+scripted), or an exported policy (`pe_mjx.policy.export_loader`) wrapped to take the rng."""
 
 
 def _wrap(a: np.ndarray | float) -> np.ndarray:
@@ -94,7 +95,7 @@ class Controller:
     def __init__(
         self,
         config: EnvConfig,
-        policies: Mapping[str, Policy] | None = None,
+        policies: Mapping[str, Actor] | None = None,
         *,
         velocity_window: float | None = None,
         history: int = 64,

@@ -2,7 +2,7 @@
 
 The exported function is the greedy policy of `pe_mjx.load_policy(run, team, deterministic=True)`
 with the observation normaliser and the parameters folded in as constants; see
-`pe_mjx.export_loader` (jax and numpy only) for the file layout and how to run it.
+`pe_mjx.policy.export_loader` (jax and numpy only) for the file layout and how to run it.
 """
 
 from __future__ import annotations
@@ -18,13 +18,13 @@ import jax
 import numpy as np
 from jax import export
 
-from pe_mjx.agents import dummy_obs, normalize_obs
 from pe_mjx.config import EnvConfig
-from pe_mjx.env import action_table
-from pe_mjx.export_loader import FORMAT, META, PROGRAM, VERSION
 from pe_mjx.names import OBSERVATION_KEYS, other_team
 from pe_mjx.networks import greedy_actions
-from pe_mjx.ppo.checkpoint import CheckpointError, restore_policy_params
+from pe_mjx.policy.export_loader import FORMAT, META, PROGRAM, VERSION
+from pe_mjx.policy.inference import dummy_obs, normalize_obs
+from pe_mjx.policy.store import CheckpointError, restore_policy_params
+from pe_mjx.stages.dynamics import action_table
 
 INPUTS = OBSERVATION_KEYS
 # Lowered for both, so that one file runs on a robot computer's CPU or NVIDIA GPU.

@@ -1,7 +1,7 @@
-"""Play-time policies from networks: observation statistics + actor-critic -> `(obs, rng) -> a`.
+"""Learned policies: observation statistics + actor-critic -> a `Policy`.
 
-The trainer, the checkpoint loader, the evaluator and the viewer all act through these, so a
-policy plays the same wherever it runs (`pe_mjx.play` turns a policy spec into one of them).
+The trainer, the policy store, the evaluator and the viewer all act through these, so a policy
+plays the same wherever it runs (`pe_mjx.policy.resolve` turns a policy spec into one).
 Observation normalisation is Brax's `running_statistics`, one statistic per entity type over its
 feature axis (independent of entity counts).
 """
@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from brax.training.acme import running_statistics
 
 from pe_mjx.config import EnvConfig
+from pe_mjx.experiment import NetworkConfig
 from pe_mjx.names import (
     AGENT_FEATURES,
     ENTITY_KEYS,
@@ -25,7 +26,7 @@ from pe_mjx.names import (
     other_team,
 )
 from pe_mjx.networks import greedy_actions, sample_actions
-from pe_mjx.policies import Policy
+from pe_mjx.policy.core import Policy, team_letter
 
 
 def dummy_obs(env_config: EnvConfig, team: str) -> dict[str, jax.Array]:
@@ -85,9 +86,9 @@ def update_normalizer(
 def policy_apply(network: Any, deterministic: bool = False) -> Callable[..., jax.Array]:
     """`apply(variables, obs, rng) -> actions` with the learned state as an argument.
 
-    `variables` is `{"params": ..., "normalizer": ...}`. Unlike `learned_policy`, which closes
-    over them, a jitted caller takes them as inputs, so one compile serves every policy of the
-    same network shape (the evaluator compiles once per shape, not once per pairing).
+    `variables` is `{"params": ..., "normalizer": ...}`. A jitted caller takes them as inputs, so
+    one compile serves every policy of the same network shape (the evaluator compiles once per
+    shape, not once per pairing).
     """
 
     def apply(variables: dict[str, Any], obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
@@ -98,43 +99,52 @@ def policy_apply(network: Any, deterministic: bool = False) -> Callable[..., jax
 
 
 def learned_policy(
-    network: Any, params: Any, normalizer: dict[str, Any], deterministic: bool = False
+    team: str,
+    network: Any,
+    network_config: NetworkConfig,
+    variables: dict[str, Any],
+    source: str = "training",
+    label: str | None = None,
+    deterministic: bool = False,
+    **fields: Any,
 ) -> Policy:
-    """A jittable `(obs, rng) -> actions` from network parameters and observation statistics.
+    """The `Policy` of a network with its variables ({"params", "normalizer"}).
 
-    `obs` is one team's observation dict with any leading dims ([A, ...] for one arena).
+    Args:
+      source: where it came from (a run directory; "training" for the trainer's current state).
+      label: the paper's label; by default "P_MIX" etc.
+      fields: further `Policy` fields (`shape_key`, `note`).
     """
-    apply = policy_apply(network, deterministic)
-    variables = {"params": params, "normalizer": normalizer}
-
-    def policy(obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
-        return apply(variables, obs, rng)
-
-    return policy
+    encoder = network_config.encoder
+    return Policy(
+        team=team,
+        source=source,
+        label=label or f"{team_letter(team)}_{encoder.upper()}",
+        method=encoder,
+        apply=policy_apply(network, deterministic),
+        variables=variables,
+        network=network,
+        network_config=network_config,
+        deterministic=deterministic,
+        attention_apply=(
+            attention_policy_apply(network, deterministic) if encoder == "mix" else None
+        ),
+        **fields,
+    )
 
 
 def attention_policy_apply(
-    network: Any, encoder: str, deterministic: bool = False
-) -> Callable[..., tuple[jax.Array, jax.Array | None]]:
-    """`apply(variables, obs, rng) -> (actions, attention)`: `policy_apply` for the viewer.
-
-    MIX networks (`encoder == "mix"`) also return each agent's own-token attention over its
-    tokens, mean over heads: float [A, M]; other encoders return None. Actions are int32 [A].
-    """
-    with_attention = encoder == "mix"
+    network: Any, deterministic: bool = False
+) -> Callable[..., tuple[jax.Array, jax.Array]]:
+    """`apply(variables, obs, rng) -> (actions, attention)` of a MIX network, for the viewer (a
+    MIX `Policy`'s `attention_apply`): each agent's own-token attention over its tokens, mean over
+    heads, float [A, M]; actions int32 [A]."""
 
     def apply(variables: dict[str, Any], obs: dict[str, jax.Array], rng: jax.Array):
         inputs = normalize_obs(obs, variables["normalizer"])
-        attention = None
-        if with_attention:
-            (logits, _), inter = network.apply(
-                variables["params"], inputs, mutable=["intermediates"]
-            )
-            weights = inter["intermediates"]["encoder"]["attention"][0]  # [A, H, M]
-            attention = jnp.mean(weights, axis=-2)
-        else:
-            logits, _ = network.apply(variables["params"], inputs)
+        (logits, _), inter = network.apply(variables["params"], inputs, mutable=["intermediates"])
+        weights = inter["intermediates"]["encoder"]["attention"][0]  # [A, H, M]
         actions = greedy_actions(logits) if deterministic else sample_actions(logits, rng)
-        return actions.astype(jnp.int32), attention
+        return actions.astype(jnp.int32), jnp.mean(weights, axis=-2)
 
     return apply

@@ -1,6 +1,7 @@
 """Hand-written policies for both teams (scripted pursuit and evasion, random) and a registry.
 
-Every policy has the signature a learned policy has::
+`make_policy` wraps one in the package's `Policy` type. The functions themselves have the signature
+a learned policy has::
 
     policy(obs: dict[str, jax.Array], rng: jax.Array) -> int32 [A]
 
@@ -22,11 +23,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from pe_mjx.config import EnvConfig
-from pe_mjx.env import action_table, arc_offsets
 from pe_mjx.names import BUILTIN_POLICIES, TEAMS
+from pe_mjx.policy.core import Policy, builtin_policy
+from pe_mjx.stages.dynamics import action_table, arc_offsets
 
-Policy = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
-"""(obs of one team in one arena, rng) -> int32 [A] action indices."""
+PolicyFn = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
+"""A hand-written policy function: (obs of one team in one arena, rng) -> int32 [A] actions."""
 
 
 # ----------------------------------------------------------------------------- geometry helpers
@@ -71,7 +73,7 @@ def _gap(points: jax.Array, centres: jax.Array, radii: jax.Array | float) -> jax
     return d - radii
 
 
-def _per_agent(one: Callable[..., jax.Array], fields: tuple[str, ...]) -> Policy:
+def _per_agent(one: Callable[..., jax.Array], fields: tuple[str, ...]) -> PolicyFn:
     """A team policy from `one(*obs[f] for f in fields, action_mask) -> action` of one agent,
     vmapped over the team's agents (scripted policies ignore the rng)."""
     batched = jax.vmap(one)
@@ -104,7 +106,7 @@ def scripted_pursuer(
     lead_time: float = 1.0,
     danger_distance: float | None = None,
     danger_weight: float = 4.0,
-) -> Policy:
+) -> PolicyFn:
     """Target assignment plus pure pursuit through the action mask.
 
     Each pursuer, from its own observation only:
@@ -202,7 +204,7 @@ def scripted_evader(
     obstacle_weight: float = 0.1,
     teammate_weight: float = 0.3,
     safety_margin: float = 0.05,
-) -> Policy:
+) -> PolicyFn:
     """Flee pursuers and walls by minimising a repulsive potential along each action's arc.
 
     For each action allowed by ``action_mask`` the evader follows that action's arc (constant v,
@@ -298,7 +300,7 @@ def scripted_evader(
 # ----------------------------------------------------------------------------- random
 
 
-def random_policy(config: EnvConfig, team: str) -> Policy:
+def random_policy(config: EnvConfig, team: str) -> PolicyFn:
     """Uniform over each agent's valid actions (categorical over ``where(action_mask, 0, -inf)``).
 
     Args:
@@ -320,13 +322,13 @@ def random_policy(config: EnvConfig, team: str) -> Policy:
 # ----------------------------------------------------------------------------- registry
 
 
-def _scripted(config: EnvConfig, team: str) -> Policy:
+def _scripted(config: EnvConfig, team: str) -> PolicyFn:
     factories = {"pursuer": scripted_pursuer, "evader": scripted_evader}
     config.team(team)  # validates the team name
     return factories[team](config)
 
 
-POLICIES: dict[str, Callable[[EnvConfig, str], Policy]] = {
+POLICIES: dict[str, Callable[[EnvConfig, str], PolicyFn]] = {
     "scripted": _scripted,
     "random": random_policy,
 }
@@ -335,7 +337,7 @@ assert tuple(POLICIES) == BUILTIN_POLICIES
 
 
 def make_policy(name: str, config: EnvConfig, team: str) -> Policy:
-    """Builds a named policy for one team; unknown names or teams raise ValueError.
+    """A named builtin policy for one team; unknown names or teams raise ValueError.
 
     Args:
       name: a key of `POLICIES` ("scripted", "random").
@@ -346,12 +348,12 @@ def make_policy(name: str, config: EnvConfig, team: str) -> Policy:
         raise ValueError(f"unknown policy {name!r}; known policies: {', '.join(POLICIES)}")
     if team not in TEAMS:
         raise ValueError(f"unknown team {team!r}; expected one of {TEAMS}")
-    return POLICIES[name](config, team)
+    return builtin_policy(name, team, POLICIES[name](config, team))
 
 
 __all__ = [
     "POLICIES",
-    "Policy",
+    "PolicyFn",
     "make_policy",
     "random_policy",
     "scripted_evader",

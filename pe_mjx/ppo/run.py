@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import subprocess
 import sys
@@ -16,10 +17,11 @@ import jax.numpy as jnp
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from pe_mjx.agents import Policy
+from pe_mjx.config import EnvConfig
 from pe_mjx.experiment import RESUMABLE, ExperimentConfig
 from pe_mjx.names import TEAMS
-from pe_mjx.play import resolve_policy
+from pe_mjx.policy.core import Policy
+from pe_mjx.policy.resolve import resolve_policy
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.train import Trainer, TrainState
 
@@ -103,12 +105,42 @@ def resume_config(
 
 def resolve_opponents(config: ExperimentConfig) -> dict[str, Policy]:
     """The frozen policy of every team that does not learn ("scripted", "random", a run
-    directory or a shipped policy), resolved by `pe_mjx.play.resolve_policy`."""
+    directory or a shipped policy), resolved by `pe_mjx.policy.resolve.resolve_policy`."""
     return {
-        team: resolve_policy(config.team(team).policy, team, config.env).policy
+        team: resolve_policy(config.team(team).policy, team, config.env)
         for team in TEAMS
         if config.team(team).policy != "learn"
     }
+
+
+@dataclasses.dataclass(frozen=True)
+class Snapshot:
+    """What a watcher of a training run (the live viewer) gets after every iteration: host
+    copies of the current policies and counters, never the trainer or its (donated) state."""
+
+    env_config: EnvConfig
+    backend: str
+    policies: dict[str, Policy]
+    """Every team's policy: the learned ones with their current variables on the host (source
+    "training"), the fixed ones as configured."""
+    iteration: int
+    env_steps: int
+    metrics: dict[str, float]
+
+
+def snapshot(trainer: Trainer, state: TrainState, metrics: dict[str, float]) -> Snapshot:
+    policies = trainer.policies(state)
+    for team in trainer.learned:
+        variables = jax.device_get(policies[team].variables)
+        policies[team] = dataclasses.replace(policies[team], variables=variables)
+    return Snapshot(
+        env_config=trainer.env_config,
+        backend=trainer.config.backend,
+        policies=policies,
+        iteration=int(state.iteration),
+        env_steps=int(state.env_steps),
+        metrics=dict(metrics),
+    )
 
 
 def train(
@@ -117,7 +149,7 @@ def train(
     resume: bool = False,
     progress: bool = True,
     stop_after: int | None = None,
-    on_iteration: Callable[[Trainer, TrainState, dict[str, float]], None] | None = None,
+    on_iteration: Callable[[Snapshot], None] | None = None,
     wandb_project: str | None = None,
 ) -> tuple[Trainer, TrainState]:
     """Trains (or resumes) a co-evolution, writing checkpoints and logs to `out`.
@@ -129,7 +161,7 @@ def train(
       progress: show a progress bar.
       stop_after: stop (with a checkpoint) after this many iterations of this call; for tests
         and for chunked runs on machines with a time limit.
-      on_iteration: called after every iteration with the host-side metrics (live viewer).
+      on_iteration: called after every iteration with a `Snapshot` (the live viewer).
       wandb_project: also log every scalar to this Weights & Biases project (the `wandb`
         extra; `WANDB_MODE=offline` logs without an account).
 
@@ -176,7 +208,7 @@ def _train(
     resume: bool,
     progress: bool,
     stop_after: int | None,
-    on_iteration: Callable[[Trainer, TrainState, dict[str, float]], None] | None,
+    on_iteration: Callable[[Snapshot], None] | None,
     wandb_project: str | None = None,
 ) -> tuple[Trainer, TrainState]:
     from tensorboardX import SummaryWriter
@@ -282,7 +314,7 @@ def _train(
                 success="" if success is None else f"success vs scripted {success:.2f}",
             )
             if on_iteration is not None:
-                on_iteration(trainer, state, host)
+                on_iteration(snapshot(trainer, state, host))
             if done_iters % config.checkpoint_every == 0 or done_iters == end:
                 last_saved = checkpoint.save(run_dir, trainer, state)
     return trainer, state

@@ -32,14 +32,20 @@ from brax.training import gradients
 from brax.training.acme import running_statistics
 from flax import struct
 
-from pe_mjx.agents import Policy, init_normalizer, learned_policy, normalize_obs, update_normalizer
-from pe_mjx.config import TEAMS, other_team
 from pe_mjx.env import AutoResetWrapper, PursuitEvasionEnv, State
 from pe_mjx.episodes import play_episodes
-from pe_mjx.experiment import BUILTIN_POLICIES as FIXED_POLICIES
 from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.names import BUILTIN_POLICIES as FIXED_POLICIES
+from pe_mjx.names import TEAMS, other_team
 from pe_mjx.networks import log_prob, make_network, sample_actions
-from pe_mjx.policies import make_policy
+from pe_mjx.policy.core import Policy
+from pe_mjx.policy.inference import (
+    init_normalizer,
+    learned_policy,
+    normalize_obs,
+    update_normalizer,
+)
+from pe_mjx.policy.scripted import make_policy
 from pe_mjx.ppo.losses import TeamBatch, ppo_loss, team_targets
 
 
@@ -326,7 +332,10 @@ class Trainer:
         out = dict(self.fixed)
         for team in self.learned:
             team_ts = ts.teams[team]
-            out[team] = learned_policy(self.networks[team], team_ts.params, team_ts.normalizer)
+            variables = {"params": team_ts.params, "normalizer": team_ts.normalizer}
+            out[team] = learned_policy(
+                team, self.networks[team], self.network_configs[team], variables
+            )
         return out
 
     def evaluate(self, ts: TrainState, rng: jax.Array) -> dict[str, jax.Array]:

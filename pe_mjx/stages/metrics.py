@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 
 from pe_mjx.config import EnvConfig
-from pe_mjx.names import CAUSE_NAMES, TEAMS
+from pe_mjx.names import ABSENT, CAUSE_NAMES, TEAMS
 from pe_mjx.outcomes import outcome_counts
 from pe_mjx.stages.rewards import Terms
 from pe_mjx.stages.world import World
@@ -37,7 +37,9 @@ def step_metrics(
     for team, s in zip(TEAMS, (slice(0, p), slice(p, None)), strict=True):
         for name in CAUSE_NAMES.values():
             metrics[f"episode/{team}_{name}"] = counts[f"{team}s_{name}"].astype(jnp.float32)
-        metrics[f"episode/{team}_distance"] = jnp.mean(world.distance[s])
+        present = world.cause[s] != ABSENT
+        travelled = jnp.sum(jnp.where(present, world.distance[s], 0.0))
+        metrics[f"episode/{team}_distance"] = travelled / jnp.sum(present)
     metrics["episode/captures"] = jnp.sum(world.captures[p:]).astype(jnp.float32)
     metrics["episode/success_rate"] = counts["success_rate"]
     metrics["episode/pursuit_cost"] = counts["pursuit_cost"].astype(jnp.float32)

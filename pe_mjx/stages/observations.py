@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 
 from pe_mjx.config import EnvConfig
-from pe_mjx.names import OBSTACLE_FEATURES, TEAMS, other_team
+from pe_mjx.names import ABSENT, OBSTACLE_FEATURES, TEAMS, other_team
 from pe_mjx.stages.geometry import Geometry, bearing, drop_diagonal, per_agent, to_heading
 from pe_mjx.stages.masks import MaskTable, action_mask
 from pe_mjx.stages.world import World
@@ -28,7 +28,8 @@ def entity_observations(config: EnvConfig, world: World, geom: Geometry) -> Obse
     distance from the centre / R, bearing of the centre, forward speed / v_max); `teammates`
     [A, A - 1, 6] and `opponents` [A, A', 6] (downed flag, distance / R, bearing, velocity in the
     heading frame / the observer's v_max); `obstacles` [A, K, 4] (distance / R, bearing,
-    radius / R); and their all-true masks. `geom` is the `Geometry` of the world's poses.
+    radius / R); and their masks, False only for entities absent from the episode. `geom` is the
+    `Geometry` of the world's poses.
     """
     R = config.arena.radius
     n, k = config.pursuer.num_agents + config.evader.num_agents, config.arena.num_obstacles
@@ -62,6 +63,10 @@ def entity_observations(config: EnvConfig, world: World, geom: Geometry) -> Obse
         axis=-1,
     ).reshape(n, k, OBSTACLE_FEATURES)
 
+    # Entities absent from the episode (`min_agents`, `min_obstacles`) are masked out for every
+    # observer; all others are seen, incapacitated agents included (flag 1).
+    seen = jnp.broadcast_to((world.cause != ABSENT)[None, :], (n, n))
+    seen_obstacles = jnp.broadcast_to((world.obstacles[:, 2] > 0)[None, :], (n, k))
     slices = team_slices(config)
     obs = {}
     for team in TEAMS:
@@ -73,9 +78,9 @@ def entity_observations(config: EnvConfig, world: World, geom: Geometry) -> Obse
             "teammates": mates,
             "opponents": opps,
             "obstacles": obst[sl],
-            "teammate_mask": jnp.ones(mates.shape[:2], dtype=bool),
-            "opponent_mask": jnp.ones(opps.shape[:2], dtype=bool),
-            "obstacle_mask": jnp.ones((sl.stop - sl.start, k), dtype=bool),
+            "teammate_mask": drop_diagonal(seen[sl, sl]),
+            "opponent_mask": seen[sl, other],
+            "obstacle_mask": seen_obstacles[sl],
         }
     return obs
 

@@ -1,4 +1,5 @@
-"""A fresh arena for `reset`: random sequential placement of obstacles, then agents."""
+"""A fresh arena for `reset`: random sequential placement of obstacles, then agents, and (with
+`min_agents` / `min_obstacles`) which of them take part in the episode."""
 
 from __future__ import annotations
 
@@ -14,10 +15,40 @@ from pe_mjx.stages.geometry import per_agent
 class Placement:
     """Obstacles and agent poses of a fresh arena; K obstacles, N agents (pursuers first)."""
 
-    obstacles: jax.Array  # [K, 3] x, y, radius
+    obstacles: jax.Array  # [K, 3] x, y, radius (0 for an absent obstacle)
     pos: jax.Array  # [N, 2]
     yaw: jax.Array  # [N]
     ok: jax.Array  # bool []: every entity found a candidate with the required clearance
+    present: jax.Array  # bool [N]: False for agents absent from this episode (`min_agents`)
+
+
+PARK_DISTANCE = 10.0
+"""Absent agents and obstacles wait this many arena radii from the centre, one metre apart: far
+beyond every distance a rule looks at (collisions, rewards, action masks), and masked out of
+every observation."""
+
+
+def draw_counts(config: EnvConfig, rng: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Which agents (bool [N], pursuers first) and obstacles (bool [K]) take part in an episode:
+    the first n of each team and the first k obstacles, n and k uniform in [min, max] of the
+    config (`TeamConfig.min_agents`, `ArenaConfig.min_obstacles`; None: all)."""
+    ranges = (
+        (config.pursuer.min_agents, config.pursuer.num_agents),
+        (config.evader.min_agents, config.evader.num_agents),
+        (config.arena.min_obstacles, config.arena.num_obstacles),
+    )
+    keys = jax.random.split(rng, len(ranges))
+    flags = []
+    for key, (low, high) in zip(keys, ranges, strict=True):
+        count = high if low is None else jax.random.randint(key, (), low, high + 1)
+        flags.append(jnp.arange(high) < count)
+    return jnp.concatenate(flags[:2]), flags[2]
+
+
+def varies_counts(config: EnvConfig) -> bool:
+    """Whether the config draws entity counts per episode."""
+    lows = (config.pursuer.min_agents, config.evader.min_agents, config.arena.min_obstacles)
+    return any(low is not None for low in lows)
 
 
 def place(config: EnvConfig, rng: jax.Array) -> Placement:
@@ -58,7 +89,19 @@ def place(config: EnvConfig, rng: jax.Array) -> Placement:
     pos, ok = jax.lax.fori_loop(0, total, body, (pos0, jnp.ones((), dtype=bool)))
     obstacles = jnp.concatenate([pos[:k], obstacle_r[:, None]], axis=1)
     yaw = jax.random.uniform(rng_yaw, (n,), minval=-jnp.pi, maxval=jnp.pi)
-    return Placement(obstacles=obstacles, pos=pos[k:], yaw=yaw, ok=ok)
+    agents = pos[k:]
+    present = jnp.ones(n, dtype=bool)
+    if varies_counts(config):
+        # Its own key, folded off: a config with fixed counts draws exactly what it always drew.
+        present, obstacle_present = draw_counts(config, jax.random.fold_in(rng, 1))
+        far = PARK_DISTANCE * a.radius
+        park_agents = jnp.stack([far + jnp.arange(n, dtype=jnp.float32), jnp.zeros(n)], -1)
+        agents = jnp.where(present[:, None], agents, park_agents)
+        park_obstacles = jnp.stack(
+            [jnp.zeros(k), far + jnp.arange(k, dtype=jnp.float32), jnp.zeros(k)], -1
+        )
+        obstacles = jnp.where(obstacle_present[:, None], obstacles, park_obstacles)
+    return Placement(obstacles=obstacles, pos=agents, yaw=yaw, ok=ok, present=present)
 
 
-__all__ = ["Placement", "place"]
+__all__ = ["PARK_DISTANCE", "Placement", "draw_counts", "place", "varies_counts"]

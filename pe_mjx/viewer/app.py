@@ -29,7 +29,8 @@ import numpy as np
 
 from pe_mjx.config import PRESETS, EnvConfig, get_preset
 from pe_mjx.names import BACKENDS, CAUSE_NAMES, TEAMS
-from pe_mjx.policies import POLICIES
+from pe_mjx.policy.core import Policy
+from pe_mjx.policy.scripted import POLICIES
 from pe_mjx.trajectory import Trajectory
 from pe_mjx.viewer.guard import (
     MAX_ARENAS,
@@ -40,14 +41,7 @@ from pe_mjx.viewer.guard import (
     Rule,
     check_address,
 )
-from pe_mjx.viewer.live import (
-    LiveRun,
-    PolicyError,
-    TeamPolicy,
-    fixed_policy,
-    load_team_policy,
-    network_team_policy,
-)
+from pe_mjx.viewer.live import LiveRun, PolicyError, load_team_policy
 from pe_mjx.viewer.replay import (
     ReplaySource,
     export_trajectory,
@@ -232,7 +226,7 @@ class Viewer:
         self._hold_until: float | None = None
         self._last_counters = 0.0
         self._last_frame_time: float | None = None
-        self._training: dict[str, Any] = {}
+        self._training_started = False
         self._build_gui()
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
@@ -564,7 +558,7 @@ class Viewer:
     def _live_status(self) -> str:
         assert isinstance(self.source, LiveSource)
         run = self.source.run
-        pols = ", ".join(f"{t}s: `{run.policies[t].label}`" for t in TEAMS)
+        pols = ", ".join(f"{t}s: `{run.policies[t].source}`" for t in TEAMS)
         return (
             f"**{self.mode}** `{run.config.name}` x{run.num_arenas}, {run.backend}, "
             f"seed {run.seed}; {pols}"
@@ -572,7 +566,7 @@ class Viewer:
 
     def _policies(
         self, config: EnvConfig, specs: dict[str, str], access: PolicyAccess | None
-    ) -> dict[str, TeamPolicy]:
+    ) -> dict[str, Policy]:
         """Each team's policy; a team whose policy fails falls back to scripted (error shown)."""
         out = {}
         deterministic = bool(self.gui_deterministic.value)
@@ -633,15 +627,15 @@ class Viewer:
         failed = False
         for team in TEAMS:
             current = run.policies[team]
-            same_mode = current.deterministic in (None, deterministic)
-            if specs[team].strip() == current.label and same_mode:
+            same_mode = not current.learned or current.deterministic == deterministic
+            if specs[team].strip() == current.source and same_mode:
                 continue  # unchanged: no reload, no recompilation
             try:
                 policy = load_team_policy(
                     specs[team], run.config, team, deterministic, self.policy_access
                 )
             except PolicyError as err:
-                self._report(f"{err} (the {team}s keep `{run.policies[team].label}`)")
+                self._report(f"{err} (the {team}s keep `{run.policies[team].source}`)")
                 failed = True
                 continue
             self._status(f"compiling the {team} policy...")
@@ -692,7 +686,7 @@ class Viewer:
         agent = int(np.clip(int(self.gui_att_agent.value), 0, run.config.team(team).num_agents - 1))
         overlay = run.attention(team, arena, agent)
         if overlay is None:
-            label = run.policies[team].label
+            label = run.policies[team].source
             self.gui_att_info.content = (
                 f"The {team} policy `{label}` has no attention weights (only MIX policies do)."
             )
@@ -745,55 +739,36 @@ class Viewer:
 
     # -- training view
 
-    def training_update(self, trainer: Any, train_state: Any, metrics: dict[str, float]) -> None:
-        """`train(on_iteration=...)` callback: show the latest policies (called by the trainer).
+    def training_update(self, snapshot: Any) -> None:
+        """`train(on_iteration=...)` callback: show the latest policies of a training run.
 
-        Copies the learned parameters to the host (the trainer donates its state buffers to the
-        next iteration) and hands them to the loop thread; the first call builds the live run.
+        `snapshot` is a `pe_mjx.ppo.run.Snapshot` (host copies, taken by the trainer's loop); the
+        loop thread builds the live run from the first one and swaps in the learned variables of
+        the later ones (no recompilation).
         """
-        import jax
-
-        learned = {}
-        for team in getattr(trainer, "learned", ()):
-            ts = train_state.teams[team]
-            learned[team] = jax.device_get({"params": ts.params, "normalizer": ts.normalizer})
-        info = {
-            "iteration": int(train_state.iteration),
-            "env_steps": int(train_state.env_steps),
-            **metrics,
-        }
-        if not self._training:
-            self._training["trainer"] = trainer
-            self.post(lambda: self._start_training(trainer, learned))
+        info = {"iteration": snapshot.iteration, "env_steps": snapshot.env_steps}
+        info.update(snapshot.metrics)
+        if not self._training_started:
+            self._training_started = True
+            self.post(lambda: self._start_training(snapshot))
         else:
-            self.post(lambda: self._update_training(learned))
+            self.post(lambda: self._update_training(snapshot.policies))
         self.post(lambda: self._show_training(info))
 
-    def _start_training(self, trainer: Any, learned: dict[str, Any]) -> None:
-        config = trainer.env_config
-        policies: dict[str, TeamPolicy] = {}
-        for team in TEAMS:
-            if team in learned:
-                policies[team] = network_team_policy(
-                    "training",
-                    trainer.networks[team],
-                    learned[team]["params"],
-                    learned[team]["normalizer"],
-                    trainer.network_configs[team].encoder,
-                )
-            else:
-                label = str(trainer.config.team(team).policy)
-                policies[team] = fixed_policy(label, trainer.fixed[team])
-        backend = trainer.config.backend
-        self._status(f"compiling `{config.name}` ({backend})...")
-        run = LiveRun(config, policies, self.options.arenas, backend, self.options.seed)
+    def _start_training(self, snapshot: Any) -> None:
+        config = snapshot.env_config
+        self._status(f"compiling `{config.name}` ({snapshot.backend})...")
+        run = LiveRun(
+            config, snapshot.policies, self.options.arenas, snapshot.backend, self.options.seed
+        )
         self._set_source(LiveSource(run, self.options.trail_length))
         self._status(self._live_status())
 
-    def _update_training(self, learned: dict[str, Any]) -> None:
+    def _update_training(self, policies: dict[str, Policy]) -> None:
         if isinstance(self.source, LiveSource):
-            for team, params in learned.items():
-                self.source.run.set_params(team, params)
+            for team, policy in policies.items():
+                if policy.learned:
+                    self.source.run.set_params(team, policy.variables)
 
     def _show_training(self, info: dict[str, Any]) -> None:
         lines = [f"**training** iteration {info['iteration']}, {info['env_steps']:,} env steps"]

@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from pe_mjx.shipped import resolve_run
+from pe_mjx.policy.shipped import resolve_run
 
 MAX_TEXT = 1024
 """Characters of a text input at most."""

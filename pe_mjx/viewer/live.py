@@ -1,9 +1,9 @@
 """The viewer's live simulation: B arenas of the jitted env, each team's policy, attention weights.
 
 No viser here: `LiveRun` steps the env and hands out numpy `Frame`s, counters and attention
-overlays; `pe_mjx.viewer.app` draws them. A team's policy is a `TeamPolicy`: scripted, random, a
-checkpoint (`pe-mjx train --out` directory) or the trainer's current parameters. Learned
-parameters are an *argument* of the jitted step, so the training view swaps in new parameters
+overlays; `pe_mjx.viewer.app` draws them. A team's policy is a `pe_mjx.policy.Policy`: scripted,
+random, a checkpoint (`pe-mjx train --out` directory) or the trainer's current parameters. Learned
+variables are an *argument* of the jitted step, so the training view swaps in new parameters
 every iteration without recompiling.
 
 One step of the loop (`tick`, jitted whole) is ``env.step`` with the actions decided on the
@@ -14,104 +14,51 @@ that chooses the next move from it. Finished arenas freeze (`rollout.freeze`).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pe_mjx.agents import attention_policy_apply, dummy_obs
 from pe_mjx.config import EnvConfig
 from pe_mjx.env import PursuitEvasionEnv, State
 from pe_mjx.names import BUILTIN_POLICIES, CAPTURE, CAUSE_NAMES, TEAMS
 from pe_mjx.outcomes import outcome_counts
-from pe_mjx.play import resolve_policy
-from pe_mjx.ppo.checkpoint import CheckpointError
+from pe_mjx.policy.core import Policy
+from pe_mjx.policy.inference import dummy_obs
+from pe_mjx.policy.resolve import resolve_policy
+from pe_mjx.policy.shipped import resolve_run
+from pe_mjx.policy.store import CheckpointError
 from pe_mjx.rollout import freeze
-from pe_mjx.shipped import resolve_run
 from pe_mjx.viewer.guard import PolicyAccess
 from pe_mjx.viewer.scene import AttentionOverlay, Frame
-
-ApplyFn = Callable[[Any, dict[str, jax.Array], jax.Array], tuple[jax.Array, jax.Array | None]]
-"""(params, one team's obs of one arena, rng) -> (int32 actions [A], attention [A, M] or None)."""
 
 
 class PolicyError(ValueError):
     """A policy that cannot play this team in this scene (bad path, wrong team, wrong sizes)."""
 
 
-@dataclasses.dataclass(frozen=True)
-class TeamPolicy:
-    """One team's policy as the viewer runs it."""
-
-    label: str
-    """What the user asked for: "scripted", "random", a run directory, "training"."""
-    apply: ApplyFn
-    params: Any = None
-    """Learned parameters ({"params", "normalizer"}), passed to `apply` as a jit argument."""
-    has_attention: bool = False
-    """Whether `apply` returns MIX own-token attention weights."""
-    deterministic: bool | None = None
-    """Greedy (True) or sampled (False) for learned policies; None for fixed ones."""
-
-
-def fixed_policy(label: str, policy: Callable[[dict, jax.Array], jax.Array]) -> TeamPolicy:
-    """Wraps a plain `policy(obs, rng) -> actions` (scripted, random, a frozen opponent)."""
-
-    def apply(params: Any, obs: dict[str, jax.Array], rng: jax.Array):
-        del params
-        return policy(obs, rng).astype(jnp.int32), None
-
-    return TeamPolicy(label=label, apply=apply)
-
-
-def network_team_policy(
-    label: str,
-    network: Any,
-    params: Any,
-    normalizer: Any,
-    encoder: str,
-    deterministic: bool = False,
-) -> TeamPolicy:
-    """A network policy (`agents.attention_policy_apply`); MIX networks also return their
-    own-token attention (mean over heads).
-
-    Args:
-      network: the `networks.ActorCritic` module.
-      params, normalizer: its variables and observation statistics (host or device arrays).
-      encoder: the network's encoder name ("mix" gives attention weights).
-      deterministic: greedy actions instead of sampling.
-    """
-    return TeamPolicy(
-        label=label,
-        apply=attention_policy_apply(network, encoder, deterministic),
-        params={"params": params, "normalizer": normalizer},
-        has_attention=encoder == "mix",
-        deterministic=deterministic,
-    )
-
-
-def check_fits(policy: TeamPolicy, config: EnvConfig, team: str) -> None:
+def check_fits(policy: Policy, config: EnvConfig, team: str) -> None:
     """Traces the policy on this scene's observation shapes; PolicyError if it does not fit."""
     obs = dummy_obs(config, team)
     a = config.team(team).num_agents
+    apply = policy.with_attention()
     try:
-        actions, attention = jax.eval_shape(policy.apply, policy.params, obs, jax.random.key(0))
+        actions, attention = jax.eval_shape(apply, policy.variables, obs, jax.random.key(0))
     except Exception as err:
         raise PolicyError(
-            f"the {team} policy {policy.label!r} does not fit scene {config.name!r}: {err}"
+            f"the {team} policy {policy.source!r} does not fit scene {config.name!r}: {err}"
         ) from None
     if actions.shape != (a,) or not jnp.issubdtype(actions.dtype, jnp.integer):
         raise PolicyError(
-            f"the {team} policy {policy.label!r} returns actions of shape {actions.shape}, "
+            f"the {team} policy {policy.source!r} returns actions of shape {actions.shape}, "
             f"expected [{a}] integers"
         )
     if attention is not None:
         m = config.num_agents + config.arena.num_obstacles
         if attention.shape != (a, m):
             raise PolicyError(
-                f"the {team} policy {policy.label!r} returns attention {attention.shape}, "
+                f"the {team} policy {policy.source!r} returns attention {attention.shape}, "
                 f"expected {(a, m)}"
             )
 
@@ -122,8 +69,10 @@ def load_team_policy(
     team: str,
     deterministic: bool = False,
     access: PolicyAccess | None = None,
-) -> TeamPolicy:
-    """A team policy from a name ("scripted", "random") or a run directory; checked to fit.
+) -> Policy:
+    """`resolve_policy` behind the viewer's guard: a name ("scripted", "random"), a shipped
+    policy or a run directory, checked to fit the scene and, for paths typed into the GUI,
+    to lie under the allowed roots.
 
     Args:
       access: where run directories may be opened from (paths typed into the GUI); None: anywhere
@@ -136,9 +85,7 @@ def load_team_policy(
     spec = spec.strip()
     if team not in TEAMS:
         raise PolicyError(f"unknown team {team!r}; expected one of {TEAMS}")
-    if spec in BUILTIN_POLICIES:
-        policy = fixed_policy(spec, resolve_policy(spec, team, config).policy)
-    else:
+    if spec not in BUILTIN_POLICIES:
         if not spec:
             raise PolicyError(f"no {team} policy given")
         names = " or ".join(BUILTIN_POLICIES)
@@ -152,19 +99,12 @@ def load_team_policy(
                 f"{team} policy {spec!r}: not one of {', '.join(BUILTIN_POLICIES)} and no such "
                 f"directory"
             )
-        try:
-            resolved = resolve_policy(spec, team, config, deterministic)
-        except CheckpointError as err:
-            raise PolicyError(str(err)) from None
-        variables = jax.device_get(resolved.variables)
-        policy = network_team_policy(
-            spec,
-            resolved.network,
-            variables["params"],
-            variables["normalizer"],
-            resolved.method,
-            deterministic,
-        )
+    try:
+        policy = resolve_policy(spec, team, config, deterministic)
+    except CheckpointError as err:
+        raise PolicyError(str(err)) from None
+    if policy.learned:  # host arrays: handed to the jitted step as arguments
+        policy = dataclasses.replace(policy, variables=jax.device_get(policy.variables))
     check_fits(policy, config, team)
     return policy
 
@@ -191,7 +131,7 @@ class LiveRun:
     def __init__(
         self,
         config: EnvConfig,
-        policies: dict[str, TeamPolicy],
+        policies: dict[str, Policy],
         num_arenas: int = 1,
         backend: str = "mjx",
         seed: int = 0,
@@ -214,7 +154,7 @@ class LiveRun:
 
     def _build(self) -> None:
         env, b = self.env, self.num_arenas
-        applies = {t: self.policies[t].apply for t in TEAMS}
+        applies = {t: self.policies[t].with_attention() for t in TEAMS}
 
         def decide(state: State, params: dict, rng: jax.Array):
             actions, attention = {}, {}
@@ -241,7 +181,7 @@ class LiveRun:
         jax.block_until_ready(self._tick(self.state, self._actions, self._params(), self._rng))
 
     def _params(self) -> dict[str, Any]:
-        return {t: self.policies[t].params for t in TEAMS}
+        return {t: self.policies[t].variables for t in TEAMS}
 
     # -- control
 
@@ -259,7 +199,7 @@ class LiveRun:
         self._actions, attention = self._decide(self.state, self._params(), key)
         self._host = self._fetch(attention)
 
-    def set_policy(self, team: str, policy: TeamPolicy) -> None:
+    def set_policy(self, team: str, policy: Policy) -> None:
         """Swaps a team's policy (recompiles) and re-decides the pending actions."""
         check_fits(policy, self.config, team)
         self.policies[team] = policy
@@ -267,9 +207,9 @@ class LiveRun:
         self._decide_now()
         self._warm_up()
 
-    def set_params(self, team: str, params: Any) -> None:
-        """New learned parameters for a team (same structure; no recompilation)."""
-        self.policies[team] = dataclasses.replace(self.policies[team], params=params)
+    def set_params(self, team: str, variables: Any) -> None:
+        """New learned variables for a team (same structure; no recompilation)."""
+        self.policies[team] = dataclasses.replace(self.policies[team], variables=variables)
 
     def step(self) -> None:
         """One control step of every arena still playing."""
@@ -378,11 +318,8 @@ def arena_counters(
 __all__ = [
     "LiveRun",
     "PolicyError",
-    "TeamPolicy",
     "arena_counters",
     "attention_targets",
     "check_fits",
-    "fixed_policy",
     "load_team_policy",
-    "network_team_policy",
 ]

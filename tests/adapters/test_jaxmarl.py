@@ -14,7 +14,8 @@ from jaxmarl.wrappers.baselines import CTRolloutManager, LogWrapper
 
 from pe_mjx.adapters.common import flatten_observation
 from pe_mjx.adapters.jaxmarl import JaxMARLEnv
-from pe_mjx.config import TEAMS, get_preset
+from pe_mjx.config import get_preset
+from pe_mjx.names import TEAMS
 
 BATCH, STEPS, MAX_STEPS = 4, 20, 7
 

@@ -1,4 +1,5 @@
-"""The robot controller (pe_mjx.deploy): velocity estimates and observations equal to the env's."""
+"""The robot controller (pe_mjx.policy.deploy): velocity estimates and observations equal to the
+env's."""
 
 from __future__ import annotations
 
@@ -7,10 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pe_mjx.config import TEAMS, get_preset
-from pe_mjx.deploy import Controller, arc_speed
-from pe_mjx.env import PursuitEvasionEnv, action_table
-from pe_mjx.policies import make_policy
+from pe_mjx.config import get_preset
+from pe_mjx.env import PursuitEvasionEnv
+from pe_mjx.names import TEAMS
+from pe_mjx.policy.deploy import Controller, arc_speed
+from pe_mjx.policy.scripted import make_policy
+from pe_mjx.stages.dynamics import action_table
 
 ROBOTS = "4-2-2"  # the paper's physical setup: Ackermann pursuers, R_min = 0.4 m
 # Velocity features (own speed, others' vx, vy: normalised by the observer's max speed) from the

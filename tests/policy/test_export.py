@@ -1,4 +1,5 @@
-"""`pe-mjx export` (pe_mjx.policy_export) and its stand-alone loader (pe_mjx/export_loader.py)."""
+"""`pe-mjx export` (pe_mjx.policy.export) and its stand-alone loader
+(pe_mjx/policy/export_loader.py)."""
 
 from __future__ import annotations
 
@@ -18,13 +19,13 @@ import pytest
 import pe_mjx
 from pe_mjx import cli
 from pe_mjx.config import get_preset
-from pe_mjx.deploy import Controller
 from pe_mjx.env import PursuitEvasionEnv
-from pe_mjx.export_loader import load
+from pe_mjx.policy.deploy import Controller
+from pe_mjx.policy.export_loader import load
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RUN = ROOT / "assets" / "policies" / "mix-20-5-8"
-LOADER = ROOT / "pe_mjx" / "export_loader.py"
+LOADER = ROOT / "pe_mjx" / "policy" / "export_loader.py"
 ROBOTS = "4-2-2"
 # Exported and live logits: the same XLA program up to fusion and padding (float32 rounding).
 LOGIT_TOL = 1e-4
@@ -107,8 +108,8 @@ def test_exported_policy_equals_live_policy(exported, tmp_path):
 
 
 def _live_logits(run: Path):
-    from pe_mjx.agents import normalize_obs
-    from pe_mjx.ppo.checkpoint import restore_policy_params
+    from pe_mjx.policy.inference import normalize_obs
+    from pe_mjx.policy.store import restore_policy_params
 
     network, state, _, _ = restore_policy_params(run, "pursuer")
 

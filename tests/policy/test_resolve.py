@@ -1,4 +1,4 @@
-"""play.resolve_policy: one resolver for builtin names, run directories and shipped policies."""
+"""pe_mjx.policy.resolve: one resolver for builtin names, run directories and shipped policies."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from pe_mjx import get_preset
-from pe_mjx.agents import dummy_obs
-from pe_mjx.play import load_policy, resolve_policy
-from pe_mjx.ppo.checkpoint import CheckpointError
+from pe_mjx.policy.inference import dummy_obs
+from pe_mjx.policy.resolve import load_policy, resolve_policy
+from pe_mjx.policy.store import CheckpointError
 
 SHIPPED = "mix-20-5-8"
 
@@ -38,10 +38,8 @@ def test_shipped_policy_resolves_once_with_both_forms():
     assert p.network is not None and p.network_config.encoder == "mix"
     obs, key = dummy_obs(config, "evader"), jax.random.key(1)
     # The closed-over and the argument forms are the same policy.
-    np.testing.assert_array_equal(p.policy(obs, key), p.apply(p.variables, obs, key))
-    np.testing.assert_array_equal(
-        p.policy(obs, key), load_policy(SHIPPED, "evader", True)(obs, key)
-    )
+    np.testing.assert_array_equal(p(obs, key), p.apply(p.variables, obs, key))
+    np.testing.assert_array_equal(p(obs, key), load_policy(SHIPPED, "evader", True)(obs, key))
 
 
 def test_errors_name_the_problem(tmp_path):

@@ -13,10 +13,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pe_mjx.config import TEAMS, EnvConfig, get_preset
-from pe_mjx.env import action_table
+from pe_mjx.config import EnvConfig, get_preset
 from pe_mjx.match import rollout
-from pe_mjx.policies import POLICIES, make_policy
+from pe_mjx.names import TEAMS
+from pe_mjx.policy.scripted import POLICIES, make_policy
+from pe_mjx.stages.dynamics import action_table
 
 VALIDITY_PRESET = "8-2-4"  # teammates, opponents and obstacles all present
 MATCH_PRESET = "4-1-2"

@@ -9,11 +9,11 @@ import jax.numpy as jnp
 import pytest
 
 import pe_mjx
-from pe_mjx.config import TEAMS
-from pe_mjx.ppo.checkpoint import CheckpointError, read_meta
-from pe_mjx.shipped import shipped_names
+from pe_mjx.names import TEAMS
+from pe_mjx.policy.shipped import shipped_names
+from pe_mjx.policy.store import CheckpointError, read_meta
 
-SHIPPED = Path(__file__).resolve().parents[1] / "assets" / "policies" / "mix-20-5-8"
+SHIPPED = Path(__file__).resolve().parents[2] / "assets" / "policies" / "mix-20-5-8"
 
 
 def test_shipped_policy_metadata():

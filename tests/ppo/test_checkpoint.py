@@ -15,7 +15,7 @@ import pytest
 
 import pe_mjx
 from pe_mjx.experiment import ExperimentConfig
-from pe_mjx.play import load_policy, resolve_policy
+from pe_mjx.policy.resolve import load_policy, resolve_policy
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.checkpoint import CheckpointError
 from pe_mjx.ppo.run import resume_config, train
@@ -399,15 +399,19 @@ def test_an_interrupt_during_a_save_waits_for_the_save_then_stops_the_run():
     import os
     import signal
 
-    from pe_mjx.ppo.checkpoint import _interrupts_deferred
+    from pe_mjx.interrupts import deferred
 
-    before = signal.getsignal(signal.SIGINT)
-    finished = False
-    with pytest.raises(KeyboardInterrupt), _interrupts_deferred():
-        os.kill(os.getpid(), signal.SIGINT)
-        os.kill(os.getpid(), signal.SIGTERM)
-        finished = True  # reached: the signals did not interrupt the block
-    assert finished
-    assert signal.getsignal(signal.SIGINT) is before
-    with _interrupts_deferred():  # no signal: nothing raised
-        pass
+    # Python's own handler, whatever ran before in this process (the replay goes through it).
+    outer = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        finished = False
+        with pytest.raises(KeyboardInterrupt), deferred():
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGTERM)
+            finished = True  # reached: the signals did not interrupt the block
+        assert finished
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with deferred():  # no signal: nothing raised
+            pass
+    finally:
+        signal.signal(signal.SIGINT, outer)

@@ -15,7 +15,7 @@ import pytest
 
 from pe_mjx.episodes import play_episodes
 from pe_mjx.experiment import default_config
-from pe_mjx.policies import make_policy
+from pe_mjx.policy.scripted import make_policy
 from pe_mjx.ppo.train import Trainer
 from tests.tiny_config import tiny
 

@@ -10,7 +10,7 @@ import viser
 
 from pe_mjx import scene as mjcf
 from pe_mjx.config import get_preset
-from pe_mjx.env import CAPTURE, WALL
+from pe_mjx.names import CAPTURE, WALL
 from pe_mjx.viewer.scene import (
     ATTENTION_MIN_WEIGHT,
     CAUSE_RGB,

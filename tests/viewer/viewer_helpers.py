@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from pe_mjx.config import get_preset
-from pe_mjx.env import CAPTURE, WALL
+from pe_mjx.names import CAPTURE, WALL
 from pe_mjx.trajectory import Trajectory
 from tests.viewer.browser import scene_region, team_pixels
 

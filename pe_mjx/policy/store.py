@@ -1,0 +1,232 @@
+"""The policy store: reading what `pe-mjx train` wrote (orbax, no pickle), for playing it.
+
+A run directory holds `checkpoints/<iteration>/` with orbax items:
+  * `policy_<team>`: per learned team, its parameters and observation statistics (what
+    `restore_policy_params` reads, without rebuilding any env);
+  * `meta`: JSON with the whole experiment config, the env and network configs it resolved to,
+    counters and the format version. Format 1 (before the experiment config) is still read for
+    playing its policies; only format 2 runs can be resumed;
+  * `train`: the whole train state, which only the trainer reads and writes
+    (`pe_mjx.ppo.checkpoint`, which builds on this module's manager and metadata).
+Every read validates the metadata against its schema and sane bounds (`check_meta`) before
+anything is allocated from it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, NoReturn
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from pe_mjx.config import EnvConfig
+from pe_mjx.experiment import ExperimentConfig, NetworkConfig
+from pe_mjx.names import TEAMS
+from pe_mjx.networks import make_network
+from pe_mjx.policy.inference import dummy_obs, init_normalizer
+from pe_mjx.policy.shipped import resolve_run
+
+FORMAT_VERSION = 2
+READABLE_FORMATS = (1, 2)
+MAX_TO_KEEP = 3
+CHECKPOINT_DIR = "checkpoints"
+# Sane bounds on what a checkpoint's metadata may declare, checked before anything is built from
+# it (a crafted `num_agents: 20000` made the loader allocate 9.6 GB).
+MAX_ENTITIES = 1000
+MAX_LAYER_WIDTH = 4096
+
+
+class CheckpointError(ValueError):
+    """A missing, unreadable or mismatched checkpoint."""
+
+
+def short_error(err: Exception, limit: int = 300) -> str:
+    text = f"{type(err).__name__}: {err}"
+    return text if len(text) <= limit else text[:limit] + " ..."
+
+
+@contextlib.contextmanager
+def quiet_logs() -> Iterator[None]:
+    """Silences orbax's and absl's logging while a checkpoint is read: a damaged file is reported
+    as one `CheckpointError`, not followed by pages of library tracebacks."""
+    loggers = [logging.getLogger(name) for name in ("absl", "orbax", "tensorstore")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
+
+
+def manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:
+    options = ocp.CheckpointManagerOptions(max_to_keep=MAX_TO_KEEP, create=create)
+    return ocp.CheckpointManager(
+        (run_dir / CHECKPOINT_DIR).absolute(),
+        options=options,
+        item_names=("train", "meta", *(f"policy_{t}" for t in TEAMS)),
+    )
+
+
+def latest_step(run_dir: Path) -> int:
+    if not run_dir.exists():
+        raise CheckpointError(f"no run at {run_dir}: the directory does not exist")
+    if not (run_dir / CHECKPOINT_DIR).is_dir():
+        raise CheckpointError(f"{run_dir} holds no checkpoints (no {CHECKPOINT_DIR}/ directory)")
+    try:
+        with quiet_logs(), manager(run_dir, create=False) as mngr:
+            step = mngr.latest_step()
+    except Exception as err:  # an unreadable directory, a damaged step name
+        raise CheckpointError(
+            f"{run_dir}: cannot list its checkpoints: {short_error(err)}"
+        ) from None
+    if step is None:
+        raise CheckpointError(
+            f"{run_dir} holds no complete checkpoint (a run stopped during its first save?); "
+            f"`pe-mjx train --out {run_dir}` starts it afresh"
+        )
+    return step
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def check_meta(meta: Any, where: str) -> None:
+    """Checks a checkpoint's metadata against its schema and sane bounds before anything is
+    built from it; raises `CheckpointError` naming the first bad field."""
+
+    def bad(message: str) -> NoReturn:
+        raise CheckpointError(f"{where} has invalid metadata: {message}")
+
+    if not isinstance(meta, dict):
+        bad("not a JSON object")
+    for key in ("format_version", "env_config", "network_configs", "num_actions"):
+        if key not in meta:
+            bad(f"{key} is missing")
+    version = meta["format_version"]
+    if not _is_int(version) or version not in READABLE_FORMATS:
+        raise CheckpointError(
+            f"checkpoint format {version!r} in {where} is not supported (this pe-mjx reads "
+            f"formats {READABLE_FORMATS})"
+        )
+    for key in ("iteration", "env_steps"):
+        if key in meta and not (_is_int(meta[key]) and meta[key] >= 0):
+            bad(f"{key} must be an integer >= 0, got {meta[key]!r}")
+    try:
+        env_config = EnvConfig.from_dict(meta["env_config"])
+    except (TypeError, ValueError) as err:
+        bad(f"env_config: {err}")
+    counts = {
+        "env_config.pursuer.num_agents": env_config.pursuer.num_agents,
+        "env_config.evader.num_agents": env_config.evader.num_agents,
+        "env_config.arena.num_obstacles": env_config.arena.num_obstacles,
+    }
+    for field, count in counts.items():
+        if count > MAX_ENTITIES:
+            bad(f"{field} is {count}, more than the {MAX_ENTITIES} a checkpoint may hold")
+    networks, actions = meta["network_configs"], meta["num_actions"]
+    if not isinstance(networks, dict) or not networks or set(networks) - set(TEAMS):
+        bad(f"network_configs must map some of {TEAMS} to network configs")
+    if not isinstance(actions, dict):
+        bad("num_actions must map teams to action counts")
+    for team, net in networks.items():
+        try:
+            net_config = NetworkConfig.from_dict(net)
+        except (TypeError, ValueError) as err:
+            bad(f"network_configs.{team}: {err}")
+        for field in ("width", "hidden"):
+            if getattr(net_config, field) > MAX_LAYER_WIDTH:
+                bad(f"network_configs.{team}.{field} is above {MAX_LAYER_WIDTH}")
+        if (net_config.nearest_k or 0) > MAX_ENTITIES:
+            bad(f"network_configs.{team}.nearest_k is above {MAX_ENTITIES}")
+        want = env_config.team(team).num_actions
+        if actions.get(team) != want or not _is_int(actions.get(team)):
+            bad(
+                f"num_actions.{team} is {actions.get(team)!r} but its env_config gives the "
+                f"{team}s {want} actions"
+            )
+    if version >= 2:
+        try:
+            experiment = ExperimentConfig.from_dict(meta.get("experiment"))
+        except (TypeError, ValueError) as err:
+            bad(f"experiment: {err}")
+        if experiment.env != env_config:
+            bad("experiment.env differs from env_config")
+
+
+def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
+    """The JSON metadata of the latest (or given) checkpoint, validated. `run_dir` may also be
+    a shipped policy's name (`pe_mjx.policy.shipped`)."""
+    run_dir = resolve_run(run_dir)
+    step = latest_step(run_dir) if step is None else step
+    try:
+        with quiet_logs(), manager(run_dir, create=False) as mngr:
+            meta = mngr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
+    except Exception as err:  # orbax raises many types for a damaged step
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} is unreadable: {short_error(err)}"
+        ) from None
+    check_meta(meta, f"checkpoint {step} in {run_dir}")
+    meta["step"] = step
+    return meta
+
+
+def restore_policy_params(
+    run_dir: str | Path, team: str
+) -> tuple[Any, Any, NetworkConfig, dict[str, Any]]:
+    """(network, {"params", "normalizer"}, network config, meta) of one team of a run (a run
+    directory or a shipped policy's name)."""
+    run_dir = resolve_run(run_dir)
+    meta = read_meta(run_dir)
+    if team not in TEAMS:
+        raise CheckpointError(f"unknown team {team!r}; expected one of {TEAMS}")
+    if team not in meta["network_configs"]:
+        learned = ", ".join(meta["network_configs"]) or "none"
+        raise CheckpointError(
+            f"run {run_dir} did not learn a {team} policy (learned teams: {learned})"
+        )
+    try:
+        env_config = EnvConfig.from_dict(meta["env_config"])
+        net_config = NetworkConfig.from_dict(meta["network_configs"][team])
+    except (TypeError, ValueError) as err:
+        raise CheckpointError(f"checkpoint in {run_dir} has an invalid config: {err}") from None
+    network = make_network(net_config, int(meta["num_actions"][team]))
+    obs = jax.eval_shape(lambda: dummy_obs(env_config, team))  # shapes only: no allocation
+    abstract = {
+        "params": jax.eval_shape(network.init, jax.random.key(0), obs),
+        "normalizer": jax.eval_shape(init_normalizer, obs),
+    }
+    try:
+        with quiet_logs(), manager(run_dir, create=False) as mngr:
+            restored = mngr.restore(
+                meta["step"],
+                args=ocp.args.Composite(**{f"policy_{team}": ocp.args.StandardRestore(abstract)}),
+            )[f"policy_{team}"]
+    except Exception as err:
+        raise CheckpointError(
+            f"the {team} policy in {run_dir} (step {meta['step']}) cannot be restored: "
+            f"{short_error(err)}"
+        ) from None
+    if not all_finite(restored):
+        raise CheckpointError(
+            f"the {team} policy in {run_dir} (step {meta['step']}) holds non-finite parameters "
+            f"(NaN or inf): the run diverged; play an earlier checkpoint or retrain"
+        )
+    return network, restored, net_config, meta
+
+
+def all_finite(tree: Any) -> bool:
+    """Whether every floating-point leaf of `tree` is finite (no NaN, no inf)."""
+    return all(
+        bool(np.all(np.isfinite(np.asarray(x))))
+        for x in jax.tree.leaves(tree)
+        if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+    )
