@@ -79,7 +79,7 @@ def method_of(source: str) -> str:
 
 
 def _train(args: ReproduceArgs) -> None:
-    from pe_mjx.ppo import checkpoint
+    from pe_mjx.policy import store
     from pe_mjx.ppo.run import train
 
     budget = max(1, int(ENV_STEPS * args.fraction))
@@ -88,8 +88,8 @@ def _train(args: ReproduceArgs) -> None:
         if config.pursuer.network.encoder not in args.encoders or config.preset not in scales:
             continue  # only the co-evolutions that the chosen tables use
         out = args.runs / f"{name}{args.suffix}"
-        resume = (out / checkpoint.CHECKPOINT_DIR).exists()
-        if resume and checkpoint.read_meta(out)["env_steps"] >= budget:
+        resume = (out / store.CHECKPOINT_DIR).exists()
+        if resume and store.read_meta(out)["env_steps"] >= budget:
             continue
         print(f"training {out.name} ({budget:,} env steps)", flush=True)
         train(config, out, resume=resume)
@@ -97,14 +97,14 @@ def _train(args: ReproduceArgs) -> None:
 
 def found_runs(args: ReproduceArgs, scale: str) -> list[str]:
     """The runs of the chosen methods trained at `scale` that have a checkpoint, as sources."""
-    from pe_mjx.ppo import checkpoint
+    from pe_mjx.policy import store
 
     found = []
     for encoder in args.encoders:
         run = args.runs / f"{encoder}-{scale}{args.suffix}"
         try:
-            checkpoint.read_meta(run)
-        except checkpoint.CheckpointError:
+            store.read_meta(run)
+        except store.CheckpointError:
             continue
         found.append(str(run))
     return found
@@ -148,7 +148,7 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
 
 def _budgets(done: dict[str, dict]) -> list[str]:
     """One line per learned policy in the tables: its training env steps."""
-    from pe_mjx.ppo import checkpoint
+    from pe_mjx.policy import store
 
     sources = sorted(
         {p[team]["source"] for d in done.values() for p in d["pairings"] for team in TEAMS}
@@ -157,8 +157,8 @@ def _budgets(done: dict[str, dict]) -> list[str]:
     lines = []
     for source in sources:
         try:
-            steps = f"{checkpoint.read_meta(source)['env_steps']:,} env steps"
-        except checkpoint.CheckpointError:
+            steps = f"{store.read_meta(source)['env_steps']:,} env steps"
+        except store.CheckpointError:
             steps = "not found here"
         lines.append(f"- `{source}`: {steps}")
     return lines

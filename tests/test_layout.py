@@ -64,6 +64,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "viewer",
         "viewer.guard",
         "viewer.scene",
+        "viewer.gui",
         "viewer.live",
         "viewer.replay",
         "viewer.app",

@@ -65,8 +65,8 @@ def measure(args: argparse.Namespace, backend: str, browser: Browser, shot: Path
         frames, seconds = viewer.frames_streamed - f0, time.perf_counter() - t0
         max_rate = frames / seconds
 
-        viewer.gui_max_speed.value = False
-        viewer.gui_speed.value = 10.0
+        viewer.gui.max_speed.value = False
+        viewer.gui.speed.value = 10.0
         wait = time.monotonic() + 10
         while viewer.speed != 10.0 and time.monotonic() < wait:
             time.sleep(0.05)
@@ -76,7 +76,7 @@ def measure(args: argparse.Namespace, backend: str, browser: Browser, shot: Path
         paced = (viewer.frames_streamed - f0) / (time.perf_counter() - t0)
         if shot is not None:
             # Early in a fresh episode, at 10 steps/s: both teams on screen, short trails.
-            viewer.gui_att_show.value = True
+            viewer.gui.att_show.value = True
             viewer.reset(args.seed)
             page.evaluate(HIDE_NOTIFICATIONS)
             time.sleep(4.0)

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import tyro
 
+from pe_mjx.policy import store
 from pe_mjx.policy.shipped import policies_dir
-from pe_mjx.ppo import checkpoint
 
 ROOT = Path(__file__).resolve().parent.parent
 KEEP = ("_CHECKPOINT_METADATA", "commit_success.txt", "meta", "policy_pursuer", "policy_evader")
@@ -44,7 +44,7 @@ class Args:
 
 
 def ship(args: Args) -> Path:
-    meta = checkpoint.read_meta(args.run, args.step)  # validates the run and the step
+    meta = store.read_meta(args.run, args.step)  # validates the run and the step
     step = meta["step"]
     dest = (args.dest or policies_dir()) / args.name
     if "/" in args.name or args.name.startswith("."):
@@ -53,8 +53,8 @@ def ship(args: Args) -> Path:
         if not args.replace:
             raise SystemExit(f"ship_policy: error: {dest} exists (--replace to replace it)")
         shutil.rmtree(dest)
-    src = args.run / checkpoint.CHECKPOINT_DIR / str(step)
-    out = dest / checkpoint.CHECKPOINT_DIR / str(step)
+    src = args.run / store.CHECKPOINT_DIR / str(step)
+    out = dest / store.CHECKPOINT_DIR / str(step)
     out.mkdir(parents=True)
     for item in KEEP:
         if (src / item).is_dir():
@@ -65,7 +65,7 @@ def ship(args: Args) -> Path:
     link = ROOT / "assets" / "policies" / args.name
     if args.dest is None and not link.is_symlink():
         link.symlink_to(Path("../../pe_mjx/assets/policies") / args.name)
-    checkpoint.read_meta(dest)  # the shipped copy reads back
+    store.read_meta(dest)  # the shipped copy reads back
     print(f"shipped {args.run} step {step} ({meta['env_steps']:,} env steps) as {dest}")
     return dest
 

@@ -13,7 +13,7 @@ from typing import Literal
 import tyro
 
 from pe_mjx.paper import ENV_STEPS, paper_runs
-from pe_mjx.ppo import checkpoint
+from pe_mjx.policy import store
 from pe_mjx.ppo.run import train
 
 
@@ -43,8 +43,8 @@ def main() -> None:
         if args.only and name not in args.only:
             continue
         out = args.runs / name
-        resume = (out / checkpoint.CHECKPOINT_DIR).exists()
-        if resume and checkpoint.read_meta(out)["env_steps"] >= config.env_steps:
+        resume = (out / store.CHECKPOINT_DIR).exists()
+        if resume and store.read_meta(out)["env_steps"] >= config.env_steps:
             print(f"{name}: done")
             continue
         print(f"{name}: {'resuming' if resume else 'starting'} in {out}")

@@ -20,6 +20,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from pe_mjx.config import EnvConfig
 from pe_mjx.experiment import RESUMABLE, ExperimentConfig
 from pe_mjx.names import TEAMS
+from pe_mjx.policy import store
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
 from pe_mjx.ppo import checkpoint
@@ -78,9 +79,9 @@ def saved_config(run_dir: str | Path) -> ExperimentConfig:
     try:
         return ExperimentConfig.from_dict(checkpoint.read_experiment(run_dir))
     except ValueError as err:
-        if isinstance(err, checkpoint.CheckpointError):
+        if isinstance(err, store.CheckpointError):
             raise
-        raise checkpoint.CheckpointError(f"{run_dir} holds an invalid config: {err}") from None
+        raise store.CheckpointError(f"{run_dir} holds an invalid config: {err}") from None
 
 
 def resume_config(
@@ -180,12 +181,12 @@ def train(
         )
     if resume:
         if not run_dir.is_dir():
-            raise checkpoint.CheckpointError(f"no run at {run_dir}: the directory does not exist")
+            raise store.CheckpointError(f"no run at {run_dir}: the directory does not exist")
     else:
         try:
             run_dir.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise checkpoint.CheckpointError(
+            raise store.CheckpointError(
                 f"cannot create the run directory {run_dir}: {err.strerror or err}"
             ) from None
     with checkpoint.lock_run(run_dir):

@@ -27,20 +27,19 @@ from typing import Any
 
 import numpy as np
 
-from pe_mjx.config import PRESETS, EnvConfig, get_preset
-from pe_mjx.names import BACKENDS, CAUSE_NAMES, TEAMS
+from pe_mjx.config import EnvConfig, get_preset
+from pe_mjx.names import BACKENDS, TEAMS
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.scripted import POLICIES
 from pe_mjx.trajectory import Trajectory
 from pe_mjx.viewer.guard import (
     MAX_ARENAS,
-    MAX_COUNT,
     SEED_MAX,
     GuiGuard,
     PolicyAccess,
-    Rule,
     check_address,
 )
+from pe_mjx.viewer.gui import build_controls, counters_markdown
 from pe_mjx.viewer.live import LiveRun, PolicyError, load_team_policy
 from pe_mjx.viewer.replay import (
     ReplaySource,
@@ -50,8 +49,6 @@ from pe_mjx.viewer.replay import (
     write_recording,
 )
 from pe_mjx.viewer.scene import (
-    CAUSE_RGB,
-    TEAM_RGB,
     ArenaScene,
     TrailBuffer,
     configure_lighting,
@@ -59,8 +56,6 @@ from pe_mjx.viewer.scene import (
 
 HOLD_SECONDS = 1.5
 """How long the last frame of a finished episode stays on screen before the next one starts."""
-MAX_SPEED = 120.0
-"""Top of the speed slider, in env steps per second."""
 COUNTER_PERIOD = 0.25
 """Seconds between counter-table refreshes."""
 MAX_ERRORS = 1000
@@ -132,47 +127,6 @@ class LiveSource:
         return self.run.counters()
 
 
-def counters_markdown(rows: list[dict[str, Any]], config: EnvConfig, label: str = "t") -> str:
-    """A Markdown table of `arena_counters` rows (plus totals): time, active agents per team,
-    evaders captured, and agents collided per cause (wall / obstacle / teammate / opponent)."""
-    causes = [name for code, name in CAUSE_NAMES.items() if name != "capture"]
-    p, e = config.pursuer.num_agents, config.evader.num_agents
-    lines = [
-        f"| arena | {label} (s) | pursuers | evaders | captured | collided w/o/t/o |",
-        "|---|---|---|---|---|---|",
-    ]
-
-    def line(name: str, time_s: str, row: dict[str, Any], n: int) -> str:
-        cells = [
-            name,
-            time_s,
-            f"{row['pursuers']}/{p * n}",
-            f"{row['evaders']}/{e * n}",
-            str(row["captured"]),
-            "/".join(str(row[c]) for c in causes),
-        ]
-        return "| " + " | ".join(cells) + " |"
-
-    for b, row in enumerate(rows):
-        mark = " done" if row.get("done") else ""
-        lines.append(line(f"{b}{mark}", f"{row['time']:.1f}", row, 1))
-    if len(rows) > 1:
-        total = {k: sum(r[k] for r in rows) for k in ("pursuers", "evaders", "captured", *causes)}
-        lines.append(line("all", "", total, len(rows)))
-    return "\n".join(lines)
-
-
-def legend_markdown() -> str:
-    def swatch(rgb: tuple[int, int, int], text: str) -> str:
-        hex_ = "#{:02x}{:02x}{:02x}".format(*rgb)
-        return f'<span style="color:{hex_}">&#9679;</span> {text}'
-
-    parts = [swatch(TEAM_RGB[t], f"{t}s") for t in TEAMS]
-    parts.append(swatch((150, 150, 150), "incapacitated; marker above it:"))
-    parts += [swatch(rgb, CAUSE_NAMES[code]) for code, rgb in CAUSE_RGB.items()]
-    return " &nbsp; ".join(parts)
-
-
 class Viewer:
     """The running app. Build it with `start_viewer`; stop it with `stop()`."""
 
@@ -227,7 +181,8 @@ class Viewer:
         self._last_counters = 0.0
         self._last_frame_time: float | None = None
         self._training_started = False
-        self._build_gui()
+        self.gui = build_controls(self.server, self.guard, options, self.mode)
+        self._wire_gui()
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
         if replay is not None:
@@ -325,8 +280,8 @@ class Viewer:
         self.errors.append(message)
         del self.errors[:-MAX_ERRORS]
         print(f"pe-mjx view: error: {message}", file=sys.stderr, flush=True)
-        self.gui_error.content = f"**Error:** {message}"
-        self.gui_error.visible = True
+        self.gui.error.content = f"**Error:** {message}"
+        self.gui.error.visible = True
         if not notify:
             return
         for client in self.server.get_clients().values():
@@ -341,172 +296,85 @@ class Viewer:
         self._report(message, notify=False)
 
     def _clear_error(self) -> None:
-        self.gui_error.visible = False
+        self.gui.error.visible = False
 
     def _status(self, text: str) -> None:
-        self.gui_status.content = text
+        self.gui.status.content = text
         if self.options.verbose:
             print(f"pe-mjx view: {text}", flush=True)
 
     # ------------------------------------------------------------------ GUI
 
-    def _build_gui(self) -> None:
-        gui = self.server.gui
-        o = self.options
-        self.gui_status = gui.add_markdown("starting...")
-        self.gui_error = gui.add_markdown("", visible=False)
-        with gui.add_folder("Playback"):
-            self.gui_play = gui.add_button("Play", icon=None)
-            self.gui_pause = gui.add_button("Pause")
-            self.gui_step = gui.add_button("Step")
-            self.gui_speed = gui.add_slider(
-                "Steps/s", min=1.0, max=MAX_SPEED, step=1.0, initial_value=o.speed or MAX_SPEED
-            )
-            self.gui_max_speed = gui.add_checkbox("Max speed", initial_value=o.speed <= 0)
-            self.gui_trails = gui.add_checkbox("Trails", initial_value=o.trails)
-            self.gui_loop = gui.add_checkbox("Loop episodes", initial_value=o.loop)
-            self.gui_frame = gui.add_slider(
-                "Frame", min=0, max=1, step=1, initial_value=0, visible=self.mode == "replay"
-            )
-        with gui.add_folder("Scene", visible=self.mode == "live") as self.gui_scene_folder:
-            preset = o.preset if o.preset in PRESETS else next(iter(PRESETS))
-            cfg = get_preset(preset)
-            self.gui_preset = gui.add_dropdown("Preset", tuple(PRESETS), initial_value=preset)
-            self.gui_pursuers = gui.add_number(
-                "Pursuers", cfg.pursuer.num_agents, min=1, max=MAX_COUNT, step=1
-            )
-            self.gui_evaders = gui.add_number(
-                "Evaders", cfg.evader.num_agents, min=1, max=MAX_COUNT, step=1
-            )
-            self.gui_obstacles = gui.add_number(
-                "Obstacles", cfg.arena.num_obstacles, min=0, max=MAX_COUNT, step=1
-            )
-            self.gui_arenas = gui.add_number("Arenas", o.arenas, min=1, max=MAX_ARENAS, step=1)
-            self.gui_backend = gui.add_dropdown("Backend", BACKENDS, initial_value=o.backend)
-            self.gui_seed = gui.add_number("Seed", o.seed, min=0, max=SEED_MAX, step=1)
-            self.gui_reset = gui.add_button("Reset")
-            self.gui_apply = gui.add_button("Apply scene")
-        with gui.add_folder("Policies", visible=self.mode == "live") as self.gui_policy_folder:
-            self.gui_pursuer_policy = gui.add_text("Pursuer policy", o.pursuers)
-            self.gui_evader_policy = gui.add_text("Evader policy", o.evaders)
-            self.gui_deterministic = gui.add_checkbox("Greedy", initial_value=o.deterministic)
-            self.gui_load = gui.add_button("Load policies")
-        with gui.add_folder("Attention", visible=self.mode != "replay") as self.gui_att_folder:
-            self.gui_att_show = gui.add_checkbox("Show attention", initial_value=False)
-            self.gui_att_team = gui.add_dropdown("Team", TEAMS, initial_value="pursuer")
-            self.gui_att_arena = gui.add_number("Arena", 0, min=0, max=MAX_ARENAS - 1, step=1)
-            self.gui_att_agent = gui.add_number("Agent", 0, min=0, max=MAX_COUNT - 1, step=1)
-            self.gui_att_info = gui.add_markdown("")
-        with gui.add_folder("Record"):
-            self.gui_record = gui.add_button("Start recording")
-            self.gui_export = gui.add_button("Export replay", visible=self.mode == "replay")
-            self.gui_record_info = gui.add_markdown("")
-        # Everything that changes every frame sits below the controls, so a growing table never
-        # moves a button under the pointer.
-        self.gui_counters = gui.add_markdown("")
-        self.gui_training = gui.add_markdown("", visible=self.mode == "training")
-        gui.add_markdown(legend_markdown())
-        # What a browser may change, and how; every other element is read-only to it.
-        click, flag, whole = Rule("button"), Rule("bool"), Rule("int")
-        self.guard.add_all(
-            [
-                (self.gui_play, click),
-                (self.gui_pause, click),
-                (self.gui_step, click),
-                (self.gui_speed, Rule("float")),
-                (self.gui_max_speed, flag),
-                (self.gui_trails, flag),
-                (self.gui_loop, flag),
-                (self.gui_frame, whole),
-                (self.gui_preset, Rule("choice")),
-                (self.gui_pursuers, whole),
-                (self.gui_evaders, whole),
-                (self.gui_obstacles, whole),
-                (self.gui_arenas, whole),
-                (self.gui_backend, Rule("choice")),
-                (self.gui_seed, whole),
-                (self.gui_reset, click),
-                (self.gui_apply, click),
-                (self.gui_pursuer_policy, Rule("text")),
-                (self.gui_evader_policy, Rule("text")),
-                (self.gui_deterministic, flag),
-                (self.gui_load, click),
-                (self.gui_att_show, flag),
-                (self.gui_att_team, Rule("choice")),
-                (self.gui_att_arena, whole),
-                (self.gui_att_agent, whole),
-                (self.gui_record, click),
-                (self.gui_export, click),
-            ]
-        )
+    def _wire_gui(self) -> None:
+        """What each control does: most post a command to the loop thread."""
 
-        @self.gui_play.on_click
+        @self.gui.play.on_click
         def _(_: Any) -> None:
             self.post(lambda: self._set_playing(True))
 
-        @self.gui_pause.on_click
+        @self.gui.pause.on_click
         def _(_: Any) -> None:
             self.post(lambda: self._set_playing(False))
 
-        @self.gui_step.on_click
+        @self.gui.step.on_click
         def _(_: Any) -> None:
             self.post(self._request_step)
 
-        @self.gui_speed.on_update
+        @self.gui.speed.on_update
         def _(_: Any) -> None:
             self.post(self._read_speed)
 
-        @self.gui_max_speed.on_update
+        @self.gui.max_speed.on_update
         def _(_: Any) -> None:
             self.post(self._read_speed)
 
-        @self.gui_trails.on_update
+        @self.gui.trails.on_update
         def _(_: Any) -> None:
             self.post(self._apply_trails)
 
-        @self.gui_loop.on_update
+        @self.gui.loop.on_update
         def _(_: Any) -> None:
-            self.loop_episodes = bool(self.gui_loop.value)
+            self.loop_episodes = bool(self.gui.loop.value)
 
-        @self.gui_frame.on_update
+        @self.gui.frame.on_update
         def _(event: Any) -> None:
             if event.client is not None:  # our own slider moves during playback come with None
-                value = int(self.gui_frame.value)
+                value = int(self.gui.frame.value)
                 self.post(lambda: self._seek(value))
 
-        @self.gui_preset.on_update
+        @self.gui.preset.on_update
         def _(_: Any) -> None:
-            cfg = get_preset(self.gui_preset.value)
-            self.gui_pursuers.value = cfg.pursuer.num_agents
-            self.gui_evaders.value = cfg.evader.num_agents
-            self.gui_obstacles.value = cfg.arena.num_obstacles
+            cfg = get_preset(self.gui.preset.value)
+            self.gui.pursuers.value = cfg.pursuer.num_agents
+            self.gui.evaders.value = cfg.evader.num_agents
+            self.gui.obstacles.value = cfg.arena.num_obstacles
 
-        @self.gui_reset.on_click
+        @self.gui.reset.on_click
         def _(_: Any) -> None:
-            seed = int(self.gui_seed.value)
+            seed = int(self.gui.seed.value)
             self.post(lambda: self._reset(seed))
 
-        @self.gui_apply.on_click
+        @self.gui.apply.on_click
         def _(_: Any) -> None:
             self.post(self._apply_scene)
 
-        @self.gui_load.on_click
+        @self.gui.load.on_click
         def _(_: Any) -> None:
             self.post(self._load_policies)
 
         for handle in (
-            self.gui_att_show,
-            self.gui_att_team,
-            self.gui_att_arena,
-            self.gui_att_agent,
+            self.gui.att_show,
+            self.gui.att_team,
+            self.gui.att_arena,
+            self.gui.att_agent,
         ):
             handle.on_update(lambda _: self.post(self._push_frame_if_paused))
 
-        @self.gui_record.on_click
+        @self.gui.record.on_click
         def _(_: Any) -> None:
             self.post(self._toggle_recording)
 
-        @self.gui_export.on_click
+        @self.gui.export.on_click
         def _(_: Any) -> None:
             self.post(self._export_replay)
 
@@ -533,11 +401,11 @@ class Viewer:
         self._step_once = True
 
     def _read_speed(self) -> None:
-        self.speed = 0.0 if self.gui_max_speed.value else float(self.gui_speed.value)
+        self.speed = 0.0 if self.gui.max_speed.value else float(self.gui.speed.value)
 
     def _apply_trails(self) -> None:
         if self.scene is not None:
-            self.scene.set_trails_visible(bool(self.gui_trails.value))
+            self.scene.set_trails_visible(bool(self.gui.trails.value))
             self._push_frame()
 
     def _seek(self, index: int) -> None:
@@ -550,7 +418,7 @@ class Viewer:
             self.source.seek(0)
         elif isinstance(self.source, LiveSource):
             self.source.reset(seed)
-            self.gui_seed.value = seed
+            self.gui.seed.value = seed
             self._status(self._live_status())
         self._hold_until = None
         self._push_frame()
@@ -569,7 +437,7 @@ class Viewer:
     ) -> dict[str, Policy]:
         """Each team's policy; a team whose policy fails falls back to scripted (error shown)."""
         out = {}
-        deterministic = bool(self.gui_deterministic.value)
+        deterministic = bool(self.gui.deterministic.value)
         for team in TEAMS:
             try:
                 out[team] = load_team_policy(specs[team], config, team, deterministic, access)
@@ -588,25 +456,25 @@ class Viewer:
         self._status(self._live_status())
 
     def _scene_config(self) -> EnvConfig:
-        base = get_preset(self.gui_preset.value)
+        base = get_preset(self.gui.preset.value)
         counts = (
-            int(self.gui_pursuers.value),
-            int(self.gui_evaders.value),
-            int(self.gui_obstacles.value),
+            int(self.gui.pursuers.value),
+            int(self.gui.evaders.value),
+            int(self.gui.obstacles.value),
         )
         have = (base.pursuer.num_agents, base.evader.num_agents, base.arena.num_obstacles)
         return base if counts == have else base.with_counts(*counts)
 
     def _apply_scene(self) -> None:
         config = self._scene_config()  # ValueError (cannot be placed) is reported by the loop
-        arenas = int(self.gui_arenas.value)
-        backend = str(self.gui_backend.value)
-        seed = int(self.gui_seed.value)
+        arenas = int(self.gui.arenas.value)
+        backend = str(self.gui.backend.value)
+        seed = int(self.gui.seed.value)
         if arenas < 1:
             raise ValueError(f"arenas must be >= 1, got {arenas}")
         specs = {
-            "pursuer": str(self.gui_pursuer_policy.value),
-            "evader": str(self.gui_evader_policy.value),
+            "pursuer": str(self.gui.pursuer_policy.value),
+            "evader": str(self.gui.evader_policy.value),
         }
         self._status(f"compiling `{config.name}` ({backend})...")
         policies = self._policies(config, specs, self.policy_access)
@@ -620,10 +488,10 @@ class Viewer:
             return
         run = self.source.run
         specs = {
-            "pursuer": str(self.gui_pursuer_policy.value),
-            "evader": str(self.gui_evader_policy.value),
+            "pursuer": str(self.gui.pursuer_policy.value),
+            "evader": str(self.gui.evader_policy.value),
         }
-        deterministic = bool(self.gui_deterministic.value)
+        deterministic = bool(self.gui.deterministic.value)
         failed = False
         for team in TEAMS:
             current = run.policies[team]
@@ -656,7 +524,7 @@ class Viewer:
             if self.scene is not None:
                 self.scene.remove()
             self.scene = ArenaScene(self.server, source.config, source.num_arenas)
-            self.scene.set_trails_visible(bool(self.gui_trails.value))
+            self.scene.set_trails_visible(bool(self.gui.trails.value))
             position, look_at = self.scene.camera_pose()
             self.server.initial_camera.position = position
             self.server.initial_camera.look_at = look_at
@@ -664,12 +532,12 @@ class Viewer:
                 client.camera.position = position
                 client.camera.look_at = look_at
         if isinstance(source, ReplaySource):
-            self.gui_frame.max = max(1, source.num_frames - 1)
+            self.gui.frame.max = max(1, source.num_frames - 1)
             self._status(
                 f"**replay** `{source.config.name}` x{source.num_arenas}, "
                 f"{source.num_frames} frames"
             )
-        self.gui_att_arena.max = source.num_arenas - 1
+        self.gui.att_arena.max = source.num_arenas - 1
         self._hold_until = None
         self._push_frame()
         self._ready.set()
@@ -677,17 +545,17 @@ class Viewer:
     # -- attention
 
     def _attention(self) -> Any:
-        if not isinstance(self.source, LiveSource) or not self.gui_att_show.value:
-            self.gui_att_info.content = ""
+        if not isinstance(self.source, LiveSource) or not self.gui.att_show.value:
+            self.gui.att_info.content = ""
             return None
         run = self.source.run
-        team = str(self.gui_att_team.value)
-        arena = int(np.clip(int(self.gui_att_arena.value), 0, run.num_arenas - 1))
-        agent = int(np.clip(int(self.gui_att_agent.value), 0, run.config.team(team).num_agents - 1))
+        team = str(self.gui.att_team.value)
+        arena = int(np.clip(int(self.gui.att_arena.value), 0, run.num_arenas - 1))
+        agent = int(np.clip(int(self.gui.att_agent.value), 0, run.config.team(team).num_agents - 1))
         overlay = run.attention(team, arena, agent)
         if overlay is None:
             label = run.policies[team].source
-            self.gui_att_info.content = (
+            self.gui.att_info.content = (
                 f"The {team} policy `{label}` has no attention weights (only MIX policies do)."
             )
             return None
@@ -699,7 +567,7 @@ class Viewer:
             counts[kind] = counts.get(kind, 0) + 1
         own = run.own_attention(team, arena, agent)
         top = ", ".join(f"{names[i]}: {overlay.weights[i]:.2f}" for i in order)
-        self.gui_att_info.content = f"{team} {agent} in arena {arena}; self {own:.2f}; {top}"
+        self.gui.att_info.content = f"{team} {agent} in arena {arena}; self {own:.2f}; {top}"
         return overlay
 
     # -- recording
@@ -708,11 +576,11 @@ class Viewer:
         if self._serializer is None:
             self._serializer = self.server.get_scene_serializer()
             self._last_record_time = time.monotonic()
-            self.gui_record.label = "Stop recording"
-            self.gui_record_info.content = "recording..."
+            self.gui.record.label = "Stop recording"
+            self.gui.record_info.content = "recording..."
             return
         serializer, self._serializer = self._serializer, None
-        self.gui_record.label = "Start recording"
+        self.gui.record.label = "Start recording"
         serializer.insert_sleep(max(time.monotonic() - self._last_record_time, 0.0))
         data = serializer.serialize()
         stem = unique_stem(Path(self.options.record_dir), f"pe-mjx-{timestamp()}")
@@ -722,7 +590,7 @@ class Viewer:
     def _export_replay(self) -> None:
         if not isinstance(self.source, ReplaySource):
             return
-        self.gui_record_info.content = "exporting..."
+        self.gui.record_info.content = "exporting..."
         stem = unique_stem(Path(self.options.record_dir), f"pe-mjx-replay-{timestamp()}")
         speed = self.speed / (1.0 / self.source.config.control_dt) if self.speed > 0 else 4.0
         paths = export_trajectory(self.source.traj, stem, speed, self.options.trail_length)
@@ -731,7 +599,7 @@ class Viewer:
     def _saved(self, paths: tuple[Path, Path]) -> None:
         self.recordings.extend(paths)
         text = " and ".join(f"`{p}`" for p in paths)
-        self.gui_record_info.content = f"saved {text}"
+        self.gui.record_info.content = f"saved {text}"
         if self.options.verbose:
             print(f"pe-mjx view: saved {paths[0]} and {paths[1]}", flush=True)
         for client in self.server.get_clients().values():
@@ -775,7 +643,7 @@ class Viewer:
         for key in sorted(info):
             if key.startswith(("eval/", "perf/env_steps")) and np.isfinite(info[key]):
                 lines.append(f"- `{key}`: {info[key]:.3g}")
-        self.gui_training.content = "\n".join(lines)
+        self.gui.training.content = "\n".join(lines)
 
     # ------------------------------------------------------------------ the loop
 
@@ -786,7 +654,7 @@ class Viewer:
     def _push_frame(self) -> None:
         if self.source is None or self.scene is None:
             return
-        trail = self.source.trail() if self.gui_trails.value else None
+        trail = self.source.trail() if self.gui.trails.value else None
         if self._serializer is not None:
             now = time.monotonic()
             self._serializer.insert_sleep(max(now - self._last_record_time, 0.0))
@@ -794,12 +662,12 @@ class Viewer:
         self.scene.update(self.source.frame(), trail, self._attention())
         self.frames_streamed += 1
         if isinstance(self.source, ReplaySource):
-            self.gui_frame.value = self.source.index
+            self.gui.frame.value = self.source.index
         now = time.monotonic()
         if now - self._last_counters >= COUNTER_PERIOD or not self.playing:
             self._last_counters = now
             label = "frame t" if isinstance(self.source, ReplaySource) else "t"
-            self.gui_counters.content = counters_markdown(
+            self.gui.counters.content = counters_markdown(
                 self.source.counters(), self.source.config, label
             )
 
@@ -821,7 +689,7 @@ class Viewer:
                 source.seek(0)
             else:
                 source.reset((source.run.seed + 1) % (SEED_MAX + 1))
-                self.gui_seed.value = source.run.seed
+                self.gui.seed.value = source.run.seed
                 self._status(self._live_status())
         else:
             source.advance()
@@ -903,4 +771,4 @@ def start_viewer(
     return viewer
 
 
-__all__ = ["Viewer", "ViewerOptions", "counters_markdown", "start_viewer"]
+__all__ = ["Viewer", "ViewerOptions", "start_viewer"]

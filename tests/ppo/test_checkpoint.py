@@ -15,6 +15,7 @@ import pytest
 
 import pe_mjx
 from pe_mjx.experiment import ExperimentConfig
+from pe_mjx.policy import store
 from pe_mjx.policy.resolve import load_policy, resolve_policy
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.checkpoint import CheckpointError
@@ -53,7 +54,7 @@ def test_run_directory_has_config_logs_and_checkpoints(runs):
     run = root / "straight"
     assert (run / "config.json").is_file()
     assert any((run / "tb").iterdir())
-    meta = checkpoint.read_meta(run)
+    meta = store.read_meta(run)
     assert meta["iteration"] == 4 and meta["env_steps"] == 4 * 64
     assert set(meta["network_configs"]) == {"pursuer", "evader"}
 
@@ -78,7 +79,7 @@ def test_load_policy_plays_in_the_env(runs):
             assert np.asarray(state.obs[team]["action_mask"])[np.arange(len(a)), a].all()
         state = new
     # The restored parameters are those of the run.
-    _, restored, _, _ = checkpoint.restore_policy_params(root / "straight", "pursuer")
+    _, restored, _, _ = store.restore_policy_params(root / "straight", "pursuer")
     assert _max_diff(restored["params"], straight.teams["pursuer"].params) == 0.0
     # Same policy object runs unchanged at another scale (MIX is count-independent).
     big = pe_mjx.make("8-2-4", backend="kinematic")
@@ -124,7 +125,7 @@ def test_interrupted_save_leaves_the_previous_checkpoint_loadable(runs, tmp_path
     partial = run / "checkpoints" / "6.orbax-checkpoint-tmp-1234"
     (partial / "policy_evader").mkdir(parents=True)
     (partial / "policy_evader" / "garbage").write_bytes(b"\x00" * 10)
-    assert checkpoint.read_meta(run)["iteration"] == 4
+    assert store.read_meta(run)["iteration"] == 4
     load_policy(run, team="evader")
 
 
@@ -153,7 +154,7 @@ def test_kill_during_save_keeps_previous_checkpoint(tmp_path):
         [sys.executable, "-c", script, str(out)], capture_output=True, timeout=900
     )
     assert result.returncode != 0
-    meta = checkpoint.read_meta(out)
+    meta = store.read_meta(out)
     assert meta["iteration"] in (2, 4)
     load_policy(out, team="pursuer")
 
@@ -194,7 +195,7 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
         [*exe, *flags, "--stop-after", "2"], capture_output=True, text=True, timeout=900
     )
     assert first.returncode == 0, first.stderr[-3000:]
-    assert checkpoint.read_meta(out)["iteration"] == 2
+    assert store.read_meta(out)["iteration"] == 2
     saved = json.loads((out / "config.json").read_text())
     assert saved["experiment"]["pursuer"]["network"]["encoder"] == "mean"
     assert saved["code_version"]["pe_mjx"]
@@ -208,7 +209,7 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
     assert refused.returncode == 2
     assert "cannot change env.reward.capture" in refused.stderr
     assert "Traceback" not in refused.stderr
-    assert checkpoint.read_meta(out)["iteration"] == 2
+    assert store.read_meta(out)["iteration"] == 2
     assert json.loads((out / "config.json").read_text()) == saved
     # The same run can be reproduced from its config file alone.
     from pe_mjx.experiment import read_config_file
@@ -218,7 +219,7 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
         [*exe, "--resume", str(out), "--no-progress"], capture_output=True, text=True, timeout=900
     )
     assert again.returncode == 0, again.stderr[-3000:]
-    assert checkpoint.read_meta(out)["iteration"] == 4
+    assert store.read_meta(out)["iteration"] == 4
     assert "env steps" in again.stdout
     # Starting a new run over an existing one is refused; nothing is overwritten.
     clash = subprocess.run([*exe, *flags], capture_output=True, text=True, timeout=900)
@@ -298,7 +299,7 @@ def test_non_finite_parameters_stop_the_run_and_keep_the_last_good_checkpoint(
     monkeypatch.setattr(run_mod, "_params_finite", finite)
     with pytest.raises(run_mod.TrainingError, match=r"iteration 3.*last good checkpoint \(iter"):
         train(CONFIG, out, progress=False)
-    assert checkpoint.read_meta(out)["iteration"] == 2
+    assert store.read_meta(out)["iteration"] == 2
     assert not (out / "checkpoints" / "4").exists()
     with checkpoint.lock_run(out):  # released when train() ended
         pass
@@ -320,8 +321,8 @@ def test_loaders_refuse_non_finite_parameters(runs, tmp_path):
     with pytest.raises(CheckpointError, match="non-finite"):
         load_policy(run, team="pursuer")
     load_policy(run, team="evader")
-    assert checkpoint.all_finite({"a": np.ones(3), "b": np.arange(2)})
-    assert not checkpoint.all_finite({"a": np.array([1.0, np.inf])})
+    assert store.all_finite({"a": np.ones(3), "b": np.arange(2)})
+    assert not store.all_finite({"a": np.array([1.0, np.inf])})
 
 
 def test_a_locked_run_directory_refuses_a_second_trainer(tmp_path):

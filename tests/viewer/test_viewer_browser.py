@@ -159,7 +159,7 @@ def test_policy_paths_outside_the_roots_are_refused_alike_in_the_page(browser, l
     try:
         for spec in ("/no/such/run", "/etc", "../../../../.."):
             errors = len(live_viewer.errors)
-            live_viewer.gui_pursuer_policy.value = spec
+            live_viewer.gui.pursuer_policy.value = spec
             page.click_text("Load policies")
             wait_until(lambda n=errors: len(live_viewer.errors) > n, timeout=30, what="the error")
             message = live_viewer.errors[-1]
@@ -169,10 +169,10 @@ def test_policy_paths_outside_the_roots_are_refused_alike_in_the_page(browser, l
         assert len(set(messages)) == 1, messages
         assert "no such" not in messages[0] and "checkpoint" not in messages[0]
         assert "/no/such/run" in capfd.readouterr().err
-        assert live_viewer.source.run.policies["pursuer"].label == "scripted"
+        assert live_viewer.source.run.policies["pursuer"].source == "scripted"
         assert moved(page) > 50, "the viewer stopped after the error"
     finally:
-        live_viewer.gui_pursuer_policy.value = "scripted"
+        live_viewer.gui.pursuer_policy.value = "scripted"
         page.close()
 
 
@@ -231,7 +231,7 @@ def test_replay_time_slider_and_export(browser, trajectory, static_server, tmp_p
         time.sleep(0.7)
         later = robots_mask(page.screenshot())
         assert int(np.sum(start ^ later)) > 50, "the robots did not move between frames 0 and 30"
-        assert int(viewer.gui_frame.value) == 30
+        assert int(viewer.gui.frame.value) == 30
         page.click_text("Export replay")
         wait_until(lambda: len(viewer.recordings) >= 2, timeout=120, what="the export")
         page.close()
@@ -271,8 +271,8 @@ def test_checkpoint_policies_attention_overlay_and_team_mismatch(browser, live_v
     page, _ = open_viewer(browser, live_viewer.url)
     try:
         before = attention_pixels(page.screenshot())
-        live_viewer.gui_pursuer_policy.value = str(tiny_run.run_dir)
-        live_viewer.gui_evader_policy.value = str(tiny_run.run_dir)
+        live_viewer.gui.pursuer_policy.value = str(tiny_run.run_dir)
+        live_viewer.gui.evader_policy.value = str(tiny_run.run_dir)
         page.click_text("Load policies")
         wait_until(
             lambda: any("did not learn a evader policy" in e for e in live_viewer.errors),
@@ -282,9 +282,9 @@ def test_checkpoint_policies_attention_overlay_and_team_mismatch(browser, live_v
         wait_for_text(
             page, "did not learn a evader policy", timeout=30, what="the error in the page"
         )
-        assert live_viewer.source.run.policies["pursuer"].label == str(tiny_run.run_dir)
-        assert live_viewer.source.run.policies["evader"].label == "random"
-        live_viewer.gui_att_show.value = True
+        assert live_viewer.source.run.policies["pursuer"].source == str(tiny_run.run_dir)
+        assert live_viewer.source.run.policies["evader"].source == "random"
+        live_viewer.gui.att_show.value = True
         wait_for_text(page, "self", timeout=30, what="the attention summary")
         # The arena plays on: a frame just after the lone evader's capture shows no evader, so
         # wait for a frame with the overlay and both teams (the next episode brings it back).
@@ -293,55 +293,55 @@ def test_checkpoint_policies_attention_overlay_and_team_mismatch(browser, live_v
             timeout=RENDER_TIMEOUT,
         )
     finally:
-        live_viewer.gui_att_show.value = False
-        live_viewer.gui_pursuer_policy.value = "scripted"
-        live_viewer.gui_evader_policy.value = "random"
+        live_viewer.gui.att_show.value = False
+        live_viewer.gui.pursuer_policy.value = "scripted"
+        live_viewer.gui.evader_policy.value = "random"
         page.close()
 
 
 def forged_cases(v) -> list[tuple[str, object, str]]:
     """(element id, updates, what the error must say) of messages that no honest page sends."""
     return [
-        (gui_uuid(v.gui_seed), {"value": 1e30}, "'Seed' = 1e+30 from a browser: must be in [0, "),
-        (gui_uuid(v.gui_seed), {"value": 2**64 - 1}, "'Seed' = 18446744073709551615"),
-        (gui_uuid(v.gui_arenas), {"value": 65}, "'Arenas' = 65 from a browser: must be in [1, 64]"),
-        (gui_uuid(v.gui_arenas), {"value": 2.5}, "'Arenas' = 2.5 from a browser: expected a whole"),
+        (gui_uuid(v.gui.seed), {"value": 1e30}, "'Seed' = 1e+30 from a browser: must be in [0, "),
+        (gui_uuid(v.gui.seed), {"value": 2**64 - 1}, "'Seed' = 18446744073709551615"),
+        (gui_uuid(v.gui.arenas), {"value": 65}, "'Arenas' = 65 from a browser: must be in [1, 64]"),
+        (gui_uuid(v.gui.arenas), {"value": 2.5}, "'Arenas' = 2.5 from a browser: expected a whole"),
         (
-            gui_uuid(v.gui_arenas),
+            gui_uuid(v.gui.arenas),
             {"value": "3"},
             "'Arenas' = '3' from a browser: expected a number",
         ),
         (
-            gui_uuid(v.gui_speed),
+            gui_uuid(v.gui.speed),
             {"value": float("nan")},
             "'Steps/s' = nan from a browser: expected a",
         ),
-        (gui_uuid(v.gui_speed), {"value": float("-inf")}, "'Steps/s' = -inf"),
+        (gui_uuid(v.gui.speed), {"value": float("-inf")}, "'Steps/s' = -inf"),
         (
-            gui_uuid(v.gui_apply),
+            gui_uuid(v.gui.apply),
             {"update_cb": []},
             "an update of 'Apply scene' from a browser: only",
         ),
-        (gui_uuid(v.gui_apply), {"value": True, "visible": False}, "'Apply scene' = True"),
-        (gui_uuid(v.gui_reset), {"value": False}, "'Reset' = False from a browser: not a click"),
+        (gui_uuid(v.gui.apply), {"value": True, "visible": False}, "'Apply scene' = True"),
+        (gui_uuid(v.gui.reset), {"value": False}, "'Reset' = False from a browser: not a click"),
         (
-            gui_uuid(v.gui_status),
+            gui_uuid(v.gui.status),
             {"content": "<img src=x onerror=alert(1)>"},
             "an update of an unk",
         ),
         (
-            gui_uuid(v.gui_preset),
+            gui_uuid(v.gui.preset),
             {"value": "99-99-99"},
             "'Preset' = '99-99-99' from a browser: exp",
         ),
-        (gui_uuid(v.gui_backend), {"value": "warp"}, "'Backend' = 'warp'"),
-        (gui_uuid(v.gui_trails), {"value": "false"}, "'Trails' = 'false' from a browser: expected"),
-        (gui_uuid(v.gui_pursuer_policy), {"value": "x" * 5000}, "longer than 1024 characters"),
-        (gui_uuid(v.gui_pursuer_policy), {"value": "random\x00"}, "holds control characters"),
-        (gui_uuid(v.gui_att_agent), {"value": 10**9}, "'Agent' = 1000000000"),
-        (gui_uuid(v.gui_frame), {"value": -1}, "'Frame' = -1"),
+        (gui_uuid(v.gui.backend), {"value": "warp"}, "'Backend' = 'warp'"),
+        (gui_uuid(v.gui.trails), {"value": "false"}, "'Trails' = 'false' from a browser: expected"),
+        (gui_uuid(v.gui.pursuer_policy), {"value": "x" * 5000}, "longer than 1024 characters"),
+        (gui_uuid(v.gui.pursuer_policy), {"value": "random\x00"}, "holds control characters"),
+        (gui_uuid(v.gui.att_agent), {"value": 10**9}, "'Agent' = 1000000000"),
+        (gui_uuid(v.gui.frame), {"value": -1}, "'Frame' = -1"),
         ("no-such-element", {"value": 1}, "an unknown GUI element = 1"),
-        (gui_uuid(v.gui_seed), ["value", 3], "an update of 'Seed'"),
+        (gui_uuid(v.gui.seed), ["value", 3], "an update of 'Seed'"),
     ]
 
 
@@ -351,16 +351,16 @@ def test_forged_messages_are_refused_and_a_fresh_browser_still_plays(browser, li
     message still works; then a new connection and a fresh browser page connect and play."""
     v = live_viewer
     set_playing(v, True)
-    watched = (v.gui_seed, v.gui_arenas, v.gui_speed, v.gui_preset, v.gui_backend, v.gui_trails)
-    watched += (v.gui_pursuer_policy, v.gui_att_agent, v.gui_frame)
+    watched = (v.gui.seed, v.gui.arenas, v.gui.speed, v.gui.preset, v.gui.backend, v.gui.trails)
+    watched += (v.gui.pursuer_policy, v.gui.att_agent, v.gui.frame)
     before = [h.value for h in watched]
-    handlers = {h.label: list(h._impl.update_cb) for h in (v.gui_apply, v.gui_reset, v.gui_load)}
+    handlers = {h.label: list(h._impl.update_cb) for h in (v.gui.apply, v.gui.reset, v.gui.load)}
     rejected, errors = v.guard.rejected, len(v.errors)
     cases = forged_cases(v)
     with ForgedClient(v.port) as client:
         for uuid, updates, _ in cases:
             client.update(uuid, updates)
-        client.update(gui_uuid(v.gui_reset), {"value": True})  # the reset after a bad seed
+        client.update(gui_uuid(v.gui.reset), {"value": True})  # the reset after a bad seed
         wait_until(
             lambda: v.guard.rejected >= rejected + len(cases), timeout=30, what="the refusals"
         )
@@ -369,14 +369,14 @@ def test_forged_messages_are_refused_and_a_fresh_browser_still_plays(browser, li
     for _, _, message in cases:
         assert any(message in e for e in refusals), (message, refusals)
     assert [h.value for h in watched] == before
-    after = {h.label: list(h._impl.update_cb) for h in (v.gui_apply, v.gui_reset, v.gui_load)}
+    after = {h.label: list(h._impl.update_cb) for h in (v.gui.apply, v.gui.reset, v.gui.load)}
     assert after == handlers and all(after.values())
     assert np.isfinite(v.speed) and v.source.run.num_arenas == 2
     # A valid forged value is applied: the guard filters, it does not block.
     with ForgedClient(v.port) as client:
-        client.update(gui_uuid(v.gui_seed), {"value": 7})
-        wait_until(lambda: v.gui_seed.value == 7, timeout=10, what="the valid seed")
-        client.update(gui_uuid(v.gui_reset), {"value": True})
+        client.update(gui_uuid(v.gui.seed), {"value": 7})
+        wait_until(lambda: v.gui.seed.value == 7, timeout=10, what="the valid seed")
+        client.update(gui_uuid(v.gui.reset), {"value": True})
         wait_until(lambda: v.source.run.seed == 7, timeout=20, what="the forged reset")
     # New connections are served: a bare websocket, then a real browser that plays.
     with ForgedClient(v.port) as client:
@@ -396,10 +396,10 @@ def test_scene_controls_reset_and_apply(browser, live_viewer):
     set_playing(live_viewer, True)
     page, _ = open_viewer(browser, live_viewer.url)
     try:
-        live_viewer.gui_seed.value = 7
+        live_viewer.gui.seed.value = 7
         page.click_text("Reset")
         wait_until(lambda: live_viewer.source.run.seed == 7, timeout=20, what="the reset")
-        live_viewer.gui_pursuers.value = 900
+        live_viewer.gui.pursuers.value = 900
         page.click_text("Apply scene")
         wait_until(
             lambda: any("cannot be placed" in e for e in live_viewer.errors),
@@ -409,9 +409,9 @@ def test_scene_controls_reset_and_apply(browser, live_viewer):
         wait_for_text(page, "cannot be placed", timeout=30, what="the placement error in the page")
         assert live_viewer.source.run.config.pursuer.num_agents == 4
         assert moved(page) > 50
-        live_viewer.gui_pursuers.value = 3
-        live_viewer.gui_obstacles.value = 1
-        live_viewer.gui_arenas.value = 1
+        live_viewer.gui.pursuers.value = 3
+        live_viewer.gui.obstacles.value = 1
+        live_viewer.gui.arenas.value = 1
         page.click_text("Apply scene")
         wait_until(lambda: live_viewer.source.num_arenas == 1, timeout=300, what="the new scene")
         config = live_viewer.source.run.config
