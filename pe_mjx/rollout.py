@@ -93,7 +93,8 @@ def rollout(
     if state is None:
         state = env.reset(reset_rng)
     start = state.world.step
-    ret = {t: jnp.zeros_like(state.reward[t]) for t in TEAMS}
+    # Returns are summed only when asked for: the plain loop carries no extra work.
+    ret = {t: jnp.zeros_like(state.reward[t]) for t in TEAMS} if returns else {}
 
     def step(s: State, key: jax.Array, ret: dict, playing: jax.Array):
         actions, key = act(policies, s.obs, key)
@@ -101,7 +102,7 @@ def rollout(
         if record:  # a fixed-length scan: an arena that is done keeps its last state
             nxt = freeze(s, nxt)
         # The env's reward is already 0 for agents that were down before the step.
-        ret = {t: ret[t] + jnp.where(playing, nxt.reward[t], 0.0) for t in TEAMS}
+        ret = {t: r + jnp.where(playing, nxt.reward[t], 0.0) for t, r in ret.items()}
         return nxt, key, ret
 
     if record:

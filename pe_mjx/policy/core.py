@@ -22,6 +22,9 @@ import jax.numpy as jnp
 
 from pe_mjx.experiment import NetworkConfig
 
+PolicyFn = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
+"""A plain policy function: (one team's obs, rng) -> int32 actions (hand-written policies,
+exported ones wrapped to take the rng; a `Policy` is one too)."""
 ApplyFn = Callable[[Any, dict[str, jax.Array], jax.Array], jax.Array]
 """(variables, one team's obs, rng) -> int32 actions."""
 AttentionApplyFn = Callable[
@@ -84,7 +87,7 @@ def team_letter(team: str) -> str:
     return "P" if team == "pursuer" else "E"
 
 
-def builtin_policy(name: str, team: str, fn: Callable[[dict, jax.Array], jax.Array]) -> Policy:
+def builtin_policy(name: str, team: str, fn: PolicyFn) -> Policy:
     """A `Policy` around a hand-written `fn(obs, rng) -> actions` (scripted, random)."""
     return Policy(
         team=team,
@@ -96,4 +99,4 @@ def builtin_policy(name: str, team: str, fn: Callable[[dict, jax.Array], jax.Arr
     )
 
 
-__all__ = ["ApplyFn", "AttentionApplyFn", "Policy", "builtin_policy", "team_letter"]
+__all__ = ["ApplyFn", "AttentionApplyFn", "Policy", "PolicyFn", "builtin_policy", "team_letter"]

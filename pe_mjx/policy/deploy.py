@@ -45,11 +45,8 @@ import numpy as np
 from pe_mjx.config import EnvConfig
 from pe_mjx.env import PursuitEvasionEnv, World
 from pe_mjx.names import ACTIVE, OBSTACLE, TEAMS
+from pe_mjx.policy.core import PolicyFn
 from pe_mjx.stages.dynamics import action_table
-
-Actor = Callable[[dict[str, Any], jax.Array], Any]
-"""(one team's observation dict, rng) -> int32 [A] actions: a `pe_mjx.policy.Policy` (learned or
-scripted), or an exported policy (`pe_mjx.policy.export_loader`) wrapped to take the rng."""
 
 
 def _wrap(a: np.ndarray | float) -> np.ndarray:
@@ -95,7 +92,7 @@ class Controller:
     def __init__(
         self,
         config: EnvConfig,
-        policies: Mapping[str, Actor] | None = None,
+        policies: Mapping[str, PolicyFn] | None = None,
         *,
         velocity_window: float | None = None,
         history: int = 64,

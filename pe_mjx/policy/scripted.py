@@ -24,12 +24,8 @@ import numpy as np
 
 from pe_mjx.config import EnvConfig
 from pe_mjx.names import BUILTIN_POLICIES, TEAMS
-from pe_mjx.policy.core import Policy, builtin_policy
+from pe_mjx.policy.core import Policy, PolicyFn, builtin_policy
 from pe_mjx.stages.dynamics import action_table, arc_offsets
-
-PolicyFn = Callable[[dict[str, jax.Array], jax.Array], jax.Array]
-"""A hand-written policy function: (obs of one team in one arena, rng) -> int32 [A] actions."""
-
 
 # ----------------------------------------------------------------------------- geometry helpers
 
@@ -353,7 +349,6 @@ def make_policy(name: str, config: EnvConfig, team: str) -> Policy:
 
 __all__ = [
     "POLICIES",
-    "PolicyFn",
     "make_policy",
     "random_policy",
     "scripted_evader",
