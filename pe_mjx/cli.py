@@ -111,14 +111,27 @@ class TrainArgs:
     wandb_project: str | None = None
     """Also log to this Weights & Biases project (pip install 'pe-mjx[wandb]';
     WANDB_MODE=offline logs locally without an account)."""
+    coordinator_address: str | None = None
+    """Train on several processes (machines, or one per GPU) with jax.distributed: HOST:PORT
+    where process 0 serves the coordinator (or JAX_COORDINATOR_ADDRESS). Every process runs the
+    same command with its own --process-id; the run directory must be shared."""
+    num_processes: int | None = None
+    """How many processes train together (or JAX_NUM_PROCESSES)."""
+    process_id: int | None = None
+    """This process's index in [0, --num-processes) (or JAX_PROCESS_ID); 0 writes the logs."""
+    heartbeat_timeout: int = 100
+    """Seconds without a sign of life after which a process of the group counts as lost."""
 
 
-def _prescan(argv: list[str]) -> dict[str, str]:
-    """The values of --preset, --config and --resume, read before the full parse (they decide
-    the defaults of every other flag)."""
+GROUP_FLAGS = ("--coordinator-address", "--num-processes", "--process-id", "--heartbeat-timeout")
+
+
+def _prescan(argv: list[str], flags: tuple[str, ...] = ("--preset", "--config", "--resume")):
+    """The values of `flags` (by default --preset, --config and --resume, which decide the
+    defaults of every other flag), read before the full parse."""
     found: dict[str, str] = {}
     for i, arg in enumerate(argv):
-        for flag in ("--preset", "--config", "--resume"):
+        for flag in flags:
             if arg == flag and i + 1 < len(argv):
                 found[flag] = argv[i + 1]
             elif arg.startswith(flag + "="):
@@ -152,6 +165,40 @@ def train_defaults(argv: list[str]) -> TrainArgs:
     return TrainArgs(experiment=base)
 
 
+def join_group(argv: list[str]) -> None:
+    """Joins the group of processes that the train flags (or JAX_* variables) describe, before
+    anything asks JAX for a device; a lone process does nothing."""
+    from pe_mjx.ppo.distributed import DEFAULT_HEARTBEAT_TIMEOUT_S, group_from, initialize
+
+    found = _prescan(argv, GROUP_FLAGS)
+    numbers: dict[str, int] = {}
+    for flag in GROUP_FLAGS[1:]:
+        if flag in found:
+            try:
+                numbers[flag] = int(found[flag])
+            except ValueError:
+                _fail(f"{flag} must be an integer, got {found[flag]!r}")
+    try:
+        group = group_from(
+            found.get("--coordinator-address"),
+            numbers.get("--num-processes"),
+            numbers.get("--process-id"),
+            numbers.get("--heartbeat-timeout", DEFAULT_HEARTBEAT_TIMEOUT_S),
+        )
+    except ValueError as err:
+        _fail(str(err))
+    if group is None:
+        return
+    try:
+        initialize(group)
+    except Exception as err:  # unreachable coordinator, a port in use: one line
+        text = " ".join(str(err).split())[:200]
+        _fail(
+            f"--coordinator-address: process {group.process_id} of {group.num_processes} cannot "
+            f"join the group at {group.coordinator_address}: {text}"
+        )
+
+
 def _check_run_learned(flag: str, spec: str, team: str) -> None:
     """The run `spec` (given as `flag`) has a readable checkpoint that learned `team`."""
     from pe_mjx.policy.store import CheckpointError, read_meta
@@ -174,11 +221,17 @@ def _check_opponents(config: ExperimentConfig) -> None:
 
 def run_train(args: TrainArgs) -> None:
     from pe_mjx.ppo.checkpoint import CheckpointError, CheckpointWriteError
+    from pe_mjx.ppo.distributed import ProcessLostError, is_primary
     from pe_mjx.ppo.run import TrainingError, resume_config, train
 
     config = args.experiment
     if args.stop_after is not None and args.stop_after < 1:
         _fail(f"--stop-after must be >= 1, got {args.stop_after}")
+    if args.view:
+        import jax
+
+        if jax.process_count() > 1:
+            _fail("--view shows a lone process's training: drop it on several processes")
     if args.resume is None:
         out = args.out or Path("runs") / f"{config.pursuer.network.encoder}-{config.preset}"
         _check_writable_dir("--out", out)
@@ -217,6 +270,10 @@ def run_train(args: TrainArgs) -> None:
     except CheckpointWriteError as err:
         # orbax may have left threads waiting forever: end without waiting for them
         interrupts.exit_now(f"pe-mjx: error: {err}", 2)
+    except ProcessLostError as err:
+        # jax's own exit would wait for the lost process (the group's shutdown barrier), then
+        # abort: the checkpoints are on disk, end now.
+        interrupts.exit_now(f"pe-mjx: error: {err}", 1)
     except KeyboardInterrupt:
         # Everything worth keeping is on disk by now: checkpoints are written with interrupts
         # held back, and `train` closed its loggers while unwinding. The interpreter's own exit
@@ -225,7 +282,8 @@ def run_train(args: TrainArgs) -> None:
         interrupts.exit_now("pe-mjx: interrupted", 130)
     except (CheckpointError, TrainingError) as err:
         _fail(str(err))
-    _training_summary(out, state, config)
+    if is_primary():
+        _training_summary(out, state, config)
 
 
 def _training_summary(out: Path, state, config: ExperimentConfig) -> None:
@@ -760,6 +818,8 @@ def main(argv: list[str] | None = None) -> None:
     }
     if argv[:1] and argv[0] in with_defaults:
         cls, defaults = with_defaults[argv[0]]
+        if argv[0] == "train" and not {"-h", "--help"} & set(argv):
+            join_group(argv[1:])  # before a --resume's checkpoint is read (orbax asks JAX)
         try:
             default = defaults(argv[1:])
         except ValueError as err:

@@ -56,7 +56,14 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "adapters.jaxmarl",
         "adapters.pettingzoo",
     ),
-    "trainer": ("ppo", "ppo.losses", "ppo.train", "ppo.checkpoint", "ppo.run"),
+    "trainer": (
+        "ppo",
+        "ppo.losses",
+        "ppo.distributed",
+        "ppo.train",
+        "ppo.checkpoint",
+        "ppo.run",
+    ),
     "apps": (
         "evaluate",
         "plots",

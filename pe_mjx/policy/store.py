@@ -179,6 +179,19 @@ def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
     return meta
 
 
+def everywhere(abstract: Any) -> Any:
+    """Restore targets (`jax.ShapeDtypeStruct`s) for the shapes and dtypes of `abstract`, each
+    replicated over every device (every process's, in a group). Orbax otherwise restores onto
+    the devices named in the checkpoint's metadata, which another number of processes or devices
+    does not have."""
+    sharding = jax.sharding.NamedSharding(
+        jax.sharding.Mesh(np.array(jax.devices()), ("devices",)), jax.sharding.PartitionSpec()
+    )
+    return jax.tree.map(
+        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), abstract
+    )
+
+
 def restore_policy_params(
     run_dir: str | Path, team: str
 ) -> tuple[Any, Any, NetworkConfig, dict[str, Any]]:
@@ -200,10 +213,12 @@ def restore_policy_params(
         raise CheckpointError(f"checkpoint in {run_dir} has an invalid config: {err}") from None
     network = make_network(net_config, int(meta["num_actions"][team]))
     obs = jax.eval_shape(lambda: dummy_obs(env_config, team))  # shapes only: no allocation
-    abstract = {
-        "params": jax.eval_shape(network.init, jax.random.key(0), obs),
-        "normalizer": jax.eval_shape(init_normalizer, obs),
-    }
+    abstract = everywhere(
+        {
+            "params": jax.eval_shape(network.init, jax.random.key(0), obs),
+            "normalizer": jax.eval_shape(init_normalizer, obs),
+        }
+    )
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
             restored = mngr.restore(

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
@@ -32,6 +31,7 @@ from pe_mjx.policy.store import (
     CHECKPOINT_DIR,
     FORMAT_VERSION,
     CheckpointError,
+    everywhere,
     latest_step,
     manager,
     quiet_logs,
@@ -207,7 +207,10 @@ def _restore_across_versions(
     tail = [abstract.rng, abstract.iteration, abstract.env_steps]
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
-            saved = mngr.restore(step, args=ocp.args.Composite(train=ocp.args.StandardRestore()))
+            shapes = mngr.item_metadata(step)["train"]
+            saved = mngr.restore(
+                step, args=ocp.args.Composite(train=ocp.args.StandardRestore(everywhere(shapes)))
+            )
         saved = saved.train
         keys = sorted(saved)
         want_teams = jax.tree.leaves(abstract.teams)
@@ -253,13 +256,15 @@ def restore_train_state(run_dir: str | Path, trainer: Trainer) -> TrainState:
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
             restored = mngr.restore(
-                step, args=ocp.args.Composite(train=ocp.args.StandardRestore(_flat(abstract)))
+                step,
+                args=ocp.args.Composite(
+                    train=ocp.args.StandardRestore(everywhere(_flat(abstract)))
+                ),
             ).train
         restored = _unflat(abstract, jax.tree.map(np.asarray, restored))
     except Exception as err:
         restored = _restore_across_versions(run_dir, step, trainer, abstract, err)
-    restored = data_to_keys(template, restored)
-    state = jax.tree.map(jnp.asarray, restored)
-    env_state = jax.device_put(state.env_state, trainer.batch_sharding)
-    teams = jax.device_put(state.teams, trainer.replicated)
-    return state.replace(env_state=env_state, teams=teams)
+    # Host arrays straight onto the trainer's mesh: in a group of processes each takes its shards
+    # of the same arrays, so a checkpoint resumes on any number of processes and devices.
+    placed = jax.device_put(restored, trainer.state_shardings(restored))
+    return data_to_keys(template, placed)

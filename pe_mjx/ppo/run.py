@@ -24,6 +24,7 @@ from pe_mjx.policy import store
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
 from pe_mjx.ppo import checkpoint
+from pe_mjx.ppo.distributed import is_primary, lost_process_guard
 from pe_mjx.ppo.train import Trainer, TrainState
 
 CONFIG_FILE = "config.json"
@@ -170,6 +171,11 @@ def train(
     or in the parameters stops the run with `TrainingError` before anything non-finite is saved:
     the last checkpoint stays the last good one. A checkpoint that cannot be written raises
     `checkpoint.CheckpointWriteError`.
+
+    In a group of processes (`pe_mjx.ppo.distributed`, initialised before this is called) every
+    process calls this with the same arguments: all compute and write their checkpoint shards,
+    process 0 alone locks the directory and writes the config, the logs and the progress; a
+    process that dies stops the others with `ProcessLostError`.
     """
     run_dir = Path(out)
     if wandb_project is not None:
@@ -189,7 +195,8 @@ def train(
             raise store.CheckpointError(
                 f"cannot create the run directory {run_dir}: {err.strerror or err}"
             ) from None
-    with checkpoint.lock_run(run_dir):
+    lock = checkpoint.lock_run(run_dir) if is_primary() else contextlib.nullcontext()
+    with lock, lost_process_guard():
         return _train(config, run_dir, resume, progress, stop_after, on_iteration, wandb_project)
 
 
@@ -219,11 +226,18 @@ def _train(
     # during its first save): orbax ignores and replaces the unfinished temporary steps.
     state = checkpoint.restore_train_state(run_dir, trainer) if resume else trainer.init()
     last_saved = int(state.iteration) if resume else None
-    _write_config(run_dir, trainer)
-    iteration_fn = jax.jit(trainer.iteration, donate_argnums=0)
+    primary = is_primary()  # in a group, process 0 alone writes files and shows progress
+    progress = progress and primary
+    if primary:
+        _write_config(run_dir, trainer)
+    iteration_fn = jax.jit(
+        trainer.iteration,
+        donate_argnums=0,
+        out_shardings=(trainer.state_shardings(state), trainer.replicated),
+    )
     evaluate_fn = None  # compiled at the first evaluation
-    writer = SummaryWriter(str(run_dir / "tb"))
-    wandb_run = _start_wandb(wandb_project, run_dir, config) if wandb_project else None
+    writer = SummaryWriter(str(run_dir / "tb")) if primary else _NoWriter()
+    wandb_run = _start_wandb(wandb_project, run_dir, config) if wandb_project and primary else None
     start = int(state.iteration)
     total = config.num_iterations
     end = total if stop_after is None else min(total, start + stop_after)
@@ -252,7 +266,7 @@ def _train(
         )
         # The first iteration compiles (a minute for the paper's scenes on a CPU).
         bar.update(task, description=f"{config.preset} compiling...")
-        if not progress and start < end:
+        if not progress and primary and start < end:
             _note(f"{config.preset}: compiling the training iteration...")
         tic = time.perf_counter()
         for it in range(start, end):
@@ -284,16 +298,20 @@ def _train(
             for team, lr in learning_rates(trainer, done_iters).items():
                 host[f"ppo/{team}/learning_rate"] = lr
             if config.eval_every and (done_iters % config.eval_every == 0 or done_iters == total):
-                eval_key = jax.random.fold_in(jax.random.key(config.seed + 1), done_iters)
+                at = np.int32(done_iters)  # the evaluation's key is folded from it (in the jit)
                 if evaluate_fn is None:  # compiled apart, so that its time is not counted
                     message = f"{config.preset}: compiling the evaluation..."
                     bar.update(task, description=message)
-                    if not progress:
+                    if not progress and primary:
                         _note(message)
-                    evaluate_fn = jax.jit(trainer.evaluate).lower(state, eval_key).compile()
+                    evaluate_fn = (
+                        jax.jit(_evaluate_at(trainer), out_shardings=trainer.replicated)
+                        .lower(state, at)
+                        .compile()
+                    )
                 eval_tic = time.perf_counter()
                 latest_eval = {
-                    k: float(v) for k, v in jax.device_get(evaluate_fn(state, eval_key)).items()
+                    k: float(v) for k, v in jax.device_get(evaluate_fn(state, at)).items()
                 }
                 host.update(latest_eval)
                 bar.update(task, description=config.preset)
@@ -319,6 +337,27 @@ def _train(
             if done_iters % config.checkpoint_every == 0 or done_iters == end:
                 last_saved = checkpoint.save(run_dir, trainer, state)
     return trainer, state
+
+
+def _evaluate_at(trainer: Trainer) -> Callable[[TrainState, jax.Array], dict[str, jax.Array]]:
+    """`trainer.evaluate` with its key folded from the iteration inside the jitted function (in
+    a group, a key made on the host would live on one process's device only)."""
+    seed = trainer.config.seed + 1
+
+    def evaluate(state: TrainState, iteration: jax.Array) -> dict[str, jax.Array]:
+        return trainer.evaluate(state, jax.random.fold_in(jax.random.key(seed), iteration))
+
+    return evaluate
+
+
+class _NoWriter:
+    """The TensorBoard writer of a process other than 0 in a group: it writes nothing."""
+
+    def add_scalar(self, *args: Any) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
 
 
 @contextlib.contextmanager

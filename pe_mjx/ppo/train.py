@@ -145,7 +145,20 @@ class Trainer:
 
     def init(self, seed: int | None = None) -> TrainState:
         seed = self.config.seed if seed is None else seed
-        return jax.jit(self._init)(jax.random.key(seed))
+        # The key is made inside the jitted function: in a group of processes every input of a
+        # computation over all devices must be global, and a constant is.
+        return jax.jit(lambda: self._init(jax.random.key(seed)))()
+
+    def state_shardings(self, state: TrainState) -> Any:
+        """Where each leaf of a train state lives: the env batch split over the mesh, the rest
+        replicated."""
+        return state.replace(
+            env_state=jax.tree.map(lambda _: self.batch_sharding, state.env_state),
+            teams=jax.tree.map(lambda _: self.replicated, state.teams),
+            rng=self.replicated,
+            iteration=self.replicated,
+            env_steps=self.replicated,
+        )
 
     def abstract_state(self) -> TrainState:
         """Shapes and dtypes of a `TrainState` (for restoring a checkpoint), computing nothing."""
@@ -166,14 +179,14 @@ class Trainer:
                 opt_state=self.optimizers[team].init(params),
                 normalizer=init_normalizer(obs),
             )
-        teams = jax.lax.with_sharding_constraint(teams, self.replicated)
-        return TrainState(
+        state = TrainState(
             teams=teams,
             env_state=env_state,
             rng=rng,
             iteration=jnp.zeros((), jnp.int32),
             env_steps=jnp.zeros((), jnp.int32),
         )
+        return jax.lax.with_sharding_constraint(state, self.state_shardings(state))
 
     # ------------------------------------------------------------------ rollout
 
@@ -350,7 +363,7 @@ class Trainer:
             other = other_team(team)
             pair = {team: current[team], other: self.scripted[other]}
             rng, key = jax.random.split(rng)
-            keys = jax.random.split(key, self.config.eval_envs)
+            keys = self._shard_batch(jax.random.split(key, self.config.eval_envs))
             final, returns = play_episodes(self.eval_env, pair, keys, returns=True)
             for k, v in final.metrics.items():
                 if k.startswith("episode/"):

@@ -1,0 +1,180 @@
+"""Training on several processes (several machines, or one process per GPU) with jax.distributed.
+
+A group is N processes that each run the same `pe-mjx train` command with the same flags, told
+where the coordinator listens (process 0 serves it), how many they are and which one each is:
+
+    pe-mjx train ... --coordinator-address HOST:PORT --num-processes N --process-id I
+
+or the environment variables `JAX_COORDINATOR_ADDRESS`, `JAX_NUM_PROCESSES`, `JAX_PROCESS_ID`
+(flags win). `initialize` joins the group before JAX touches a device; from then on
+`jax.devices()` lists every process's devices, and the trainer's mesh shards the env batch over
+all of them (`pe_mjx.ppo.train`): each process steps its share of the arenas, gradients are
+all-reduced, parameters stay replicated. On CPUs the collectives are gloo's (TCP).
+
+What each process does in a run (`pe_mjx.ppo.run`): all of them compute and all write their
+shards of a checkpoint (orbax's multi-host save; the run directory must be on a file system every
+process sees); process 0 alone takes the run's lock and writes `config.json`, TensorBoard logs,
+W&B and the progress bar. A checkpoint restores on any process count (`--resume` with another
+N, or with one process).
+
+When a process dies, the others' next collective fails ("connection closed by peer"): they stop
+with `ProcessLostError`, and the command line ends them at once with one line (jax's own exit
+would wait `heartbeat_timeout_s` for the lost process and then abort). The last checkpoint is
+intact (orbax renames a step into place only when every process finished writing it). A process
+that hangs instead of dying is detected by the coordinator after `heartbeat_timeout_s`, and jax
+ends the group.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+
+ENV_VARS = {
+    "coordinator_address": "JAX_COORDINATOR_ADDRESS",
+    "num_processes": "JAX_NUM_PROCESSES",
+    "process_id": "JAX_PROCESS_ID",
+}
+"""The environment variables a group's settings are read from when no flag gives them."""
+FLAGS = {
+    "coordinator_address": "--coordinator-address",
+    "num_processes": "--num-processes",
+    "process_id": "--process-id",
+}
+DEFAULT_HEARTBEAT_TIMEOUT_S = 100
+"""jax's default: seconds without a heartbeat after which the coordinator declares a process
+lost (and jax ends the group)."""
+
+
+class ProcessLostError(RuntimeError):
+    """Another process of the group died (its collective failed): this one cannot go on."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Group:
+    """The settings of one process of a group (`jax.distributed.initialize`)."""
+
+    coordinator_address: str
+    """HOST:PORT where process 0 serves the coordinator and the others reach it."""
+    num_processes: int
+    process_id: int
+    heartbeat_timeout_s: int = DEFAULT_HEARTBEAT_TIMEOUT_S
+
+
+def _source(field: str, given: object) -> str:
+    return FLAGS[field] if given is not None else ENV_VARS[field]
+
+
+def group_from(
+    coordinator_address: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
+    heartbeat_timeout_s: int = DEFAULT_HEARTBEAT_TIMEOUT_S,
+    environ: Mapping[str, str] | None = None,
+) -> Group | None:
+    """The group given by the flags, else the environment variables; None for a lone process
+    (neither gives any setting). A missing or bad setting is a `ValueError` naming the flag or
+    the variable."""
+    environ = os.environ if environ is None else environ
+    given = {
+        "coordinator_address": coordinator_address,
+        "num_processes": num_processes,
+        "process_id": process_id,
+    }
+    values: dict[str, object] = {}
+    for field, value in given.items():
+        if value is None and environ.get(ENV_VARS[field], "").strip():
+            value = environ[ENV_VARS[field]].strip()
+            if field != "coordinator_address":
+                try:
+                    value = int(value)
+                except ValueError:
+                    raise ValueError(
+                        f"{ENV_VARS[field]} must be an integer, got {environ[ENV_VARS[field]]!r}"
+                    ) from None
+        values[field] = value
+    if all(v is None for v in values.values()):
+        return None
+    missing = [f for f, v in values.items() if v is None]
+    if missing:
+        names = ", ".join(f"{FLAGS[f]} (or {ENV_VARS[f]})" for f in missing)
+        raise ValueError(f"training on several processes also needs {names}")
+    address = str(values["coordinator_address"])
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        where = _source("coordinator_address", coordinator_address)
+        raise ValueError(f"{where} must be HOST:PORT (e.g. 10.0.0.1:1234), got {address!r}")
+    n, i = int(values["num_processes"]), int(values["process_id"])  # type: ignore[arg-type]
+    if n < 1:
+        raise ValueError(f"{_source('num_processes', num_processes)} must be >= 1, got {n}")
+    if not 0 <= i < n:
+        raise ValueError(
+            f"{_source('process_id', process_id)} must be in [0, {n}) for {n} processes, got {i}"
+        )
+    if heartbeat_timeout_s < 1:
+        raise ValueError(f"--heartbeat-timeout must be >= 1 s, got {heartbeat_timeout_s}")
+    return Group(address, n, i, heartbeat_timeout_s)
+
+
+def initialize(group: Group) -> None:
+    """Joins the group (blocks until every process has joined, `jax.distributed.initialize`).
+    Must run before anything asks JAX for a device."""
+    import jax
+
+    # CPU processes need a collectives implementation to reach each other (GPUs use NCCL).
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(
+        coordinator_address=group.coordinator_address,
+        num_processes=group.num_processes,
+        process_id=group.process_id,
+        heartbeat_timeout_seconds=group.heartbeat_timeout_s,
+    )
+
+
+def is_primary() -> bool:
+    """Whether this process writes the run's files (process 0; a lone process too)."""
+    import jax
+
+    return jax.process_index() == 0
+
+
+_LOST_MARKERS = ("connection closed by peer", "gloo", "coordination service", "heartbeat")
+
+
+def is_lost_process_error(err: BaseException) -> bool:
+    """Whether `err` is a collective that failed because another process went away."""
+    text = str(err).lower()
+    return any(marker in text for marker in _LOST_MARKERS)
+
+
+@contextmanager
+def lost_process_guard() -> Iterator[None]:
+    """In a group, turns a collective that failed because a process died into
+    `ProcessLostError` (one line for the user); anything else passes through."""
+    import jax
+
+    try:
+        yield
+    except Exception as err:
+        if jax.process_count() > 1 and is_lost_process_error(err):
+            raise ProcessLostError(
+                f"process {jax.process_index()} of {jax.process_count()}: another process of "
+                f"the group stopped ({' '.join(str(err).split())[:160]}); stopping this one. "
+                f"The last checkpoint is intact: resume with --resume on any number of processes"
+            ) from None
+        raise
+
+
+__all__ = [
+    "DEFAULT_HEARTBEAT_TIMEOUT_S",
+    "ENV_VARS",
+    "Group",
+    "ProcessLostError",
+    "group_from",
+    "initialize",
+    "is_lost_process_error",
+    "is_primary",
+    "lost_process_guard",
+]
