@@ -17,10 +17,11 @@ from typing import Annotated, Literal
 import tyro
 
 from pe_mjx import interrupts
-from pe_mjx.config import PRESETS, EnvConfig
+from pe_mjx.config import PRESETS, EnvConfig, PresetName
 from pe_mjx.experiment import Backend, ExperimentConfig
 from pe_mjx.names import BACKENDS, BUILTIN_POLICIES
 from pe_mjx.reproduce import ReproduceArgs
+from pe_mjx.viewer.options import ViewerOptions
 
 
 def _fail(message: str) -> None:
@@ -47,9 +48,6 @@ def _check_seed(seed: int) -> None:
 def _check_backend(backend: str) -> None:
     if backend not in BACKENDS:
         _fail(f"--backend: unknown backend {backend!r}; expected mjx or kinematic")
-
-
-PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -324,39 +322,15 @@ class ViewArgs:
     Prints the local URL; the page shows the arenas in 3D and updates live. With --export it
     writes <export>.viser and <export>.html (a page that plays without a server) and exits."""
 
-    preset: PresetName = "20-5-8"
-    """Scenario preset (P-E-K); entity counts can be changed in the GUI."""
-    pursuers: str = "scripted"
-    """Pursuer policy: "scripted", "random", a shipped policy ("mix-20-5-8") or a `pe-mjx
-    train` run directory."""
-    evaders: str = "scripted"
-    """Evader policy: "scripted", "random", a shipped policy ("mix-20-5-8") or a `pe-mjx
-    train` run directory."""
-    arenas: int | None = None
-    """Arenas shown side by side in a grid (default 1; for a replay the file's first arenas,
-    at most 16)."""
-    backend: Backend = "mjx"
-    """Env backend: "mjx" or "kinematic" (exact arcs, compiles and runs faster)."""
-    seed: int = 0
-    """Seed of the arenas' draws and the policies' sampling."""
-    speed: float = 10.0
-    """Env steps per second (0: as fast as possible)."""
+    viewer: Annotated[ViewerOptions, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=ViewerOptions
+    )
     replay: Path | None = None
     """Replay this trajectory file (.npz written by `pe-mjx evaluate`) instead of a live run."""
     export: Path | None = None
     """Write <export>.viser and <export>.html and exit (the replay, or --steps live steps)."""
     steps: int = 200
     """Live control steps recorded by --export."""
-    host: str = "127.0.0.1"
-    """Address to bind; the default serves this machine only (any other prints a warning: every
-    browser that reaches the page can control the viewer)."""
-    port: int = 8080
-    """Port (the next free one is used if it is taken)."""
-    record_dir: Path = Path("recordings")
-    """Where the GUI's recordings are written."""
-    policy_roots: tuple[Path, ...] | None = None
-    """Directories under which policy runs typed into the page may be opened (default: the
-    working directory and the shipped assets/policies). --pursuers/--evaders are always allowed."""
 
 
 def _check_view_policies(args: ViewArgs) -> None:
@@ -365,10 +339,10 @@ def _check_view_policies(args: ViewArgs) -> None:
     from pe_mjx.config import get_preset
     from pe_mjx.viewer.live import PolicyError, load_team_policy
 
-    config = get_preset(args.preset)
+    config = get_preset(args.viewer.preset)
     for flag, spec, team in (
-        ("--pursuers", args.pursuers, "pursuer"),
-        ("--evaders", args.evaders, "evader"),
+        ("--pursuers", args.viewer.pursuers, "pursuer"),
+        ("--evaders", args.viewer.evaders, "evader"),
     ):
         try:
             load_team_policy(spec, config, team)
@@ -385,17 +359,22 @@ def _check_view_args(args: ViewArgs) -> None:
 
     from pe_mjx.viewer.guard import MAX_ARENAS, SEED_MAX, check_address
 
-    if args.arenas is not None and not 1 <= args.arenas <= MAX_ARENAS:
-        _fail(f"--arenas must be in 1..{MAX_ARENAS}, got {args.arenas}")
-    if args.backend not in BACKENDS:
-        _fail(f"--backend: unknown backend {args.backend!r}; expected {' or '.join(BACKENDS)}")
-    if not 0 <= args.seed <= SEED_MAX:
-        _fail(f"--seed must be in 0..{SEED_MAX}, got {args.seed}")
-    if not math.isfinite(args.speed) or args.speed < 0:
-        _fail(f"--speed must be a finite number >= 0, got {args.speed}")
+    o = args.viewer
+    if o.arenas is not None and not 1 <= o.arenas <= MAX_ARENAS:
+        _fail(f"--arenas must be in 1..{MAX_ARENAS}, got {o.arenas}")
+    if o.backend not in BACKENDS:
+        _fail(f"--backend: unknown backend {o.backend!r}; expected {' or '.join(BACKENDS)}")
+    if not 0 <= o.seed <= SEED_MAX:
+        _fail(f"--seed must be in 0..{SEED_MAX}, got {o.seed}")
+    if not math.isfinite(o.speed) or o.speed < 0:
+        _fail(f"--speed must be a finite number >= 0, got {o.speed}")
     if args.steps < 1:
         _fail(f"--steps must be >= 1, got {args.steps}")
-    for root in args.policy_roots or ():
+    if o.trail_length < 1:
+        _fail(f"--trail-length must be >= 1, got {o.trail_length}")
+    if not math.isfinite(o.hold) or o.hold < 0:
+        _fail(f"--hold must be a finite number >= 0, got {o.hold}")
+    for root in o.policy_roots or ():
         if not root.is_dir():
             _fail(f"--policy-roots: {root} is not a directory")
     if args.export is not None:
@@ -404,9 +383,9 @@ def _check_view_args(args: ViewArgs) -> None:
                 _fail(f"--export: {args.export.with_suffix(suffix)} exists; refusing to overwrite")
         _check_writable_dir("--export", args.export.parent)
         return
-    _check_writable_dir("--record-dir", args.record_dir)
+    _check_writable_dir("--record-dir", o.record_dir)
     try:
-        check_address(args.host, args.port)  # the viewer warns about a non-local address
+        check_address(o.host, o.port)  # the viewer warns about a non-local address
     except ValueError as err:
         _fail(str(err))
 
@@ -431,27 +410,28 @@ def run_view(args: ViewArgs) -> None:
         from pe_mjx.trajectory import load as load_trajectory
 
         try:
-            traj = load_trajectory(args.replay).select(args.arenas or 16)
+            traj = load_trajectory(args.replay).select(args.viewer.arenas or 16)
         except TrajectoryError as err:
             _fail(str(err))
     else:
-        _check_preset(args.preset)
+        _check_preset(args.viewer.preset)
         _check_view_policies(args)
     if args.export is not None:
         from pe_mjx.viewer.replay import export_live, export_trajectory
 
-        speed = args.speed / 5.0 if args.speed > 0 else 1.0  # 5 env steps/s is real time
+        o = args.viewer
+        speed = o.speed / 5.0 if o.speed > 0 else 1.0  # 5 env steps/s is real time
         try:
             if traj is not None:
                 paths = export_trajectory(traj, args.export, speed)
             else:
                 paths = export_live(
-                    args.preset,
-                    args.pursuers,
-                    args.evaders,
-                    args.arenas or 1,
-                    args.backend,
-                    args.seed,
+                    o.preset,
+                    o.pursuers,
+                    o.evaders,
+                    o.arenas or 1,
+                    o.backend,
+                    o.seed,
                     args.steps,
                     args.export,
                     speed,
@@ -460,21 +440,11 @@ def run_view(args: ViewArgs) -> None:
             _fail(str(err))
         print(f"wrote {paths[0]} and {paths[1]}")
         return
-    from pe_mjx.viewer.app import ViewerOptions, start_viewer
+    from pe_mjx.viewer.app import start_viewer
 
-    options = ViewerOptions(
-        preset=args.preset if traj is None else traj.config.name,
-        pursuers=args.pursuers,
-        evaders=args.evaders,
-        arenas=args.arenas or 1,
-        backend=args.backend,
-        seed=args.seed,
-        speed=args.speed,
-        host=args.host,
-        port=args.port,
-        record_dir=args.record_dir,
-        policy_roots=args.policy_roots,
-    )
+    options = args.viewer
+    if traj is not None:  # the replay's own scene
+        options = dataclasses.replace(options, preset=traj.config.name)
     viewer = None
     try:  # a Ctrl-C at any point from here on stops the server it started
         viewer = start_viewer(options, replay=traj, wait=False)

@@ -7,7 +7,7 @@ import json
 import math
 import types
 import typing
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Literal, TypeVar
 
 from pe_mjx.names import TEAMS
 
@@ -421,6 +421,8 @@ PRESETS: dict[str, EnvConfig] = {
     "4-2-2": _ackermann_pursuers(_paper(4, 2, 2, arena_radius=3.0), min_turning_radius=0.4),
 }
 PRESETS = {name: cfg.replace(name=name) for name, cfg in PRESETS.items()}
+PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
+"""A preset's name, as a type (the command line lists the choices)."""
 
 
 def get_preset(name: str) -> EnvConfig:

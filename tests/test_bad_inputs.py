@@ -225,6 +225,9 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
     add("view-backend", "view", "--backend", "warp")
     add("view-preset", "view", "--preset", "nope", "--backend", "kinematic")
     add("view-steps", *vw, "--export", str(w / "exp"), "--steps", "0")
+    add("view-trail-length", *vw, "--trail-length", "0")
+    for hold in ("nan", "-1"):
+        add(f"view-hold-{hold}", *vw, "--hold", hold)
     add("view-record-dir-file", *vw, "--record-dir", str(w / "afile"))
     add("view-policy-roots-missing", *vw, "--policy-roots", str(w / "missing"))
     add("view-pursuers-missing", *vw, "--pursuers", "no-such-run")

@@ -69,6 +69,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "plots",
         "reproduce",
         "viewer",
+        "viewer.options",
         "viewer.guard",
         "viewer.scene",
         "viewer.gui",

@@ -41,6 +41,7 @@ from pe_mjx.viewer.guard import (
 )
 from pe_mjx.viewer.gui import build_controls, counters_markdown
 from pe_mjx.viewer.live import LiveRun, PolicyError, load_team_policy
+from pe_mjx.viewer.options import ViewerOptions
 from pe_mjx.viewer.replay import (
     ReplaySource,
     export_trajectory,
@@ -54,41 +55,10 @@ from pe_mjx.viewer.scene import (
     configure_lighting,
 )
 
-HOLD_SECONDS = 1.5
-"""How long the last frame of a finished episode stays on screen before the next one starts."""
 COUNTER_PERIOD = 0.25
 """Seconds between counter-table refreshes."""
 MAX_ERRORS = 1000
 """Error messages kept in `Viewer.errors` (a hostile client may send many bad values)."""
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class ViewerOptions:
-    """Everything the viewer starts with (the `pe-mjx view` flags map onto these)."""
-
-    preset: str = "20-5-8"
-    pursuers: str = "scripted"
-    evaders: str = "scripted"
-    arenas: int = 1
-    backend: str = "mjx"
-    seed: int = 0
-    speed: float = 10.0
-    """Env steps per second (0: as fast as the machine goes)."""
-    trails: bool = True
-    trail_length: int = 30
-    deterministic: bool = False
-    loop: bool = True
-    """Start new episodes when every arena is done (replays restart from frame 0)."""
-    hold: float = HOLD_SECONDS
-    """Seconds the last frame of a finished episode stays on screen before the next one."""
-    play: bool = True
-    host: str = "127.0.0.1"
-    port: int = 8080
-    record_dir: Path = Path("recordings")
-    verbose: bool = True
-    policy_roots: tuple[Path, ...] | None = None
-    """Directories under which the GUI may open policy runs (None: the working directory and the
-    shipped policies under assets/policies). The `pursuers`/`evaders` given here are allowed too."""
 
 
 class LiveSource:
@@ -138,6 +108,8 @@ class Viewer:
     ):
         import viser
 
+        if options.arenas is None:  # a live run's default (a replay's arenas are its own)
+            options = dataclasses.replace(options, arenas=1)
         if replay is None and not training:
             get_preset(options.preset)  # fail early, with the list of presets
         if options.backend not in BACKENDS:
