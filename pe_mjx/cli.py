@@ -47,7 +47,7 @@ def _check_seed(seed: int) -> None:
 
 def _check_backend(backend: str) -> None:
     if backend not in BACKENDS:
-        _fail(f"--backend: unknown backend {backend!r}; expected mjx or kinematic")
+        _fail(f"--backend: unknown backend {backend!r}; expected {' or '.join(BACKENDS)}")
 
 
 @dataclasses.dataclass(frozen=True)
