@@ -134,6 +134,7 @@ class Page:
         self.page = page
         self.closed = False
         self.errors: list[str] = []
+        self._cdp: Any = None
         page.on("console", self._on_console)
         page.on("pageerror", lambda error: self.errors.append(f"pageerror: {error}"))
         page.on("crash", lambda _: self.errors.append("crash: the tab's renderer crashed"))
@@ -208,6 +209,13 @@ class Page:
             if time.monotonic() > deadline:
                 raise BrowserError(f"timed out after {timeout} s waiting for the page to render")
             time.sleep(interval)
+
+    def js_heap_mb(self) -> float:
+        """The tab's JavaScript heap in use, MB (DevTools' Runtime.getHeapUsage through
+        Playwright's CDP session: exact, where performance.memory is rounded)."""
+        if self._cdp is None:
+            self._cdp = self.page.context.new_cdp_session(self.page)
+        return self._cdp.send("Runtime.getHeapUsage")["usedSize"] / 2**20
 
     def locator(self, text: str, selector: str = "button") -> Any:
         """Playwright's locator of the first visible `selector` element whose text is `text`."""
