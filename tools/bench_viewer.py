@@ -10,7 +10,7 @@ the default 10 steps/s pacing is met. Writes the results as JSON and one screens
     .venv/bin/python -m tools.bench_viewer --backends kinematic --seconds 10
 
 Run it as a module from the checkout: it drives Chromium with the viewer tests' driver
-(tests/viewer/browser.py).
+(tests/viewer/browser.py: Playwright on Debian's chromium).
 """
 
 from __future__ import annotations

@@ -1,27 +1,24 @@
-"""A minimal headless-Chromium driver over the DevTools protocol (browser tests, docs screenshots).
+"""Headless Chromium for the viewer's browser tests, benchmark and soak, driven by Playwright.
 
-It talks to Debian's ``chromium`` through one websocket (the ``websockets`` package, which viser
-already depends on), so nothing is downloaded and no WebDriver is needed. Chromium renders viser's
-WebGL in software with ``--enable-unsafe-swiftshader`` (SPEC 7).
+Playwright (the ``playwright`` package) drives Debian's ``chromium`` through ``executable_path``:
+no browser is downloaded (never ``playwright install``). Chromium renders viser's WebGL in
+software with ``--enable-unsafe-swiftshader`` (SPEC 7). This module keeps the small API the tests
+and tools were written against:
 
     with Browser.launch() as browser:
         page = browser.new_page("http://127.0.0.1:8080")
         image = page.screenshot()  # uint8 [H, W, 3]
         page.click_text("Pause")
+        page.errors  # console errors and uncaught exceptions of the page, as text
 """
 
 from __future__ import annotations
 
-import base64
 import contextlib
 import io
-import itertools
-import json
 import os
 import re
 import shutil
-import subprocess
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -30,25 +27,24 @@ from typing import Any
 import numpy as np
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "chrome")
-CHROMIUM_FLAGS = (
+# Playwright's headless=True adds a plain `--headless` (the new mode since Chromium 132); a later
+# switch wins, so the mode is pinned here as SPEC 7 states it.
+CHROMIUM_ARGS = (
     "--headless=new",
     "--no-sandbox",
     "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--no-default-browser-check",
-    "--disable-dev-shm-usage",
-    # Two tabs render at once in the tests: keep background tabs from being throttled.
+    # Tabs render at once in the tests and the soak: keep background tabs from being throttled.
     "--disable-background-timer-throttling",
     "--disable-backgrounding-occluded-windows",
     "--disable-renderer-backgrounding",
+    "--disable-dev-shm-usage",
 )
+# Milliseconds: a loaded 2-core machine renders software WebGL slowly.
+ACTION_TIMEOUT_MS = 60_000
 
 
 class BrowserError(RuntimeError):
-    """Chromium is missing, did not start, or a DevTools command failed."""
+    """Chromium is missing or did not start, or the page did not do what was asked in time."""
 
 
 def find_chromium() -> str | None:
@@ -64,105 +60,62 @@ def find_chromium() -> str | None:
 
 
 class Browser:
-    """One Chromium process and its browser-level DevTools connection."""
+    """One Chromium process (Playwright's) and one browser context holding the tabs."""
 
-    def __init__(
-        self, process: subprocess.Popen, ws_url: str, profile: tempfile.TemporaryDirectory
-    ):
-        from websockets.sync.client import connect
-
-        self._process = process
-        self._profile = profile
-        self._ws = connect(ws_url, max_size=256 * 1024 * 1024, open_timeout=30)
-        self._ids = itertools.count(1)
+    def __init__(self, playwright: Any, browser: Any, width: int, height: int):
+        self._playwright = playwright
+        self._browser = browser
+        self._context = browser.new_context(
+            viewport={"width": width, "height": height}, device_scale_factor=1
+        )
+        self._context.set_default_timeout(ACTION_TIMEOUT_MS)
+        self._context.set_default_navigation_timeout(ACTION_TIMEOUT_MS)
         self.pages: list[Page] = []
 
     @classmethod
     def launch(
         cls, binary: str | None = None, width: int = 1024, height: int = 768, timeout: float = 60.0
     ) -> Browser:
-        """Starts headless Chromium with a throw-away profile."""
+        """Starts headless Chromium (a throw-away profile)."""
         binary = binary or find_chromium()
         if binary is None:
             raise BrowserError("no Chromium found (install Debian's `chromium` or set $CHROMIUM)")
-        profile = tempfile.TemporaryDirectory(prefix="pe-mjx-chromium-")
-        args = [
-            binary,
-            *CHROMIUM_FLAGS,
-            f"--user-data-dir={profile.name}",
-            f"--window-size={width},{height}",
-            "--remote-debugging-port=0",
-            "about:blank",
-        ]
-        process = subprocess.Popen(
-            args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, bufsize=1
-        )
-        # Chromium prints "DevTools listening on ws://..." on stderr once it is ready.
-        deadline = time.monotonic() + timeout
-        lines: list[str] = []
-        assert process.stderr is not None
-        while time.monotonic() < deadline:
-            line = process.stderr.readline()
-            if not line:
-                if process.poll() is not None:
-                    break
-                continue
-            lines.append(line)
-            match = re.search(r"DevTools listening on (ws://\S+)", line)
-            if match:
-                # Keep draining stderr so that Chromium never blocks on a full pipe.
-                _drain(process.stderr)
-                return cls(process, match.group(1), profile)
-        process.kill()
-        profile.cleanup()
-        raise BrowserError("Chromium did not start:\n" + "".join(lines[-20:]))
+        from playwright.sync_api import Error, sync_playwright
 
-    # ------------------------------------------------------------------ protocol
+        playwright = sync_playwright().start()
+        try:
+            browser = playwright.chromium.launch(
+                executable_path=binary,
+                headless=True,
+                args=list(CHROMIUM_ARGS),
+                timeout=timeout * 1000,
+            )
+            return cls(playwright, browser, width, height)
+        except Error as err:
+            playwright.stop()
+            raise BrowserError(f"Chromium did not start: {err.message}") from None
 
-    def send(self, method: str, params: dict | None = None, session: str | None = None) -> dict:
-        """Sends one command and waits for its result (events are dropped)."""
-        msg_id = next(self._ids)
-        message: dict[str, Any] = {"id": msg_id, "method": method, "params": params or {}}
-        if session is not None:
-            message["sessionId"] = session
-        self._ws.send(json.dumps(message))
-        while True:
-            reply = json.loads(self._ws.recv(timeout=120))
-            if reply.get("id") != msg_id:
-                continue
-            if "error" in reply:
-                raise BrowserError(f"{method} failed: {reply['error']}")
-            return reply.get("result", {})
-
-    # ------------------------------------------------------------------ pages
+    @property
+    def version(self) -> str:
+        return self._browser.version
 
     def new_page(self, url: str, width: int = 1024, height: int = 768) -> Page:
-        """Opens `url` in a new window and returns its page."""
-        target = self.send("Target.createTarget", {"url": "about:blank", "newWindow": True})
-        target_id = target["targetId"]
-        session = self.send("Target.attachToTarget", {"targetId": target_id, "flatten": True})
-        page = Page(self, target_id, session["sessionId"])
-        page.send("Page.enable")
-        page.send("Runtime.enable")
-        page.send(
-            "Emulation.setDeviceMetricsOverride",
-            {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
-        )
-        page.goto(url)
+        """Opens `url` in a new tab of `width` x `height` CSS pixels and returns it."""
+        page = Page(self, self._context.new_page())
+        page.page.set_viewport_size({"width": width, "height": height})
         self.pages.append(page)
+        try:
+            page.goto(url)
+        except BaseException:
+            page.close()
+            raise
         return page
 
     def close(self) -> None:
-        with contextlib.suppress(Exception):
-            self.send("Browser.close")
-        with contextlib.suppress(Exception):
-            self._ws.close()
-        try:
-            self._process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait(timeout=10)
-        self._profile.cleanup()
+        for step in (self._context.close, self._browser.close, self._playwright.stop):
+            with contextlib.suppress(Exception):
+                step()
+        self.pages.clear()
 
     def __enter__(self) -> Browser:
         return self
@@ -171,68 +124,78 @@ class Browser:
         self.close()
 
 
-def _drain(stream: Any) -> None:
-    import threading
-
-    def run() -> None:
-        for _ in stream:
-            pass
-
-    threading.Thread(target=run, daemon=True).start()
-
-
 class Page:
-    """One browser tab."""
+    """One browser tab (`page` is Playwright's). `errors` collects, as text, what the page logged
+    with console.error, the exceptions it did not catch and a renderer crash, in order; Playwright
+    hands page events over while one of its calls runs (any method here)."""
 
-    def __init__(self, browser: Browser, target_id: str, session: str):
+    def __init__(self, browser: Browser, page: Any):
         self.browser = browser
-        self.target_id = target_id
-        self.session = session
+        self.page = page
         self.closed = False
+        self.errors: list[str] = []
+        self._cdp: Any = None
+        page.on("console", self._on_console)
+        page.on("pageerror", lambda error: self.errors.append(f"pageerror: {error}"))
+        page.on("crash", lambda _: self.errors.append("crash: the tab's renderer crashed"))
 
-    def send(self, method: str, params: dict | None = None) -> dict:
-        return self.browser.send(method, params, self.session)
+    def _on_console(self, message: Any) -> None:
+        if message.type == "error":
+            self.errors.append(f"console.error: {message.text}")
+
+    def _error(self, what: str, err: Exception) -> BrowserError:
+        message = getattr(err, "message", str(err)).splitlines()[0]
+        return BrowserError(f"{what}: {message}")
 
     def goto(self, url: str) -> None:
-        self.send("Page.navigate", {"url": url})
-        self.wait_for("document.readyState === 'complete'", timeout=60)
+        """Loads `url` and waits for its load event."""
+        from playwright.sync_api import Error
+
+        try:
+            self.page.goto(url, wait_until="load")
+        except Error as err:
+            raise self._error(f"could not load {url}", err) from None
 
     def reload(self) -> None:
-        self.send("Page.reload", {"ignoreCache": False})
-        time.sleep(0.2)
-        self.wait_for("document.readyState === 'complete'", timeout=60)
+        from playwright.sync_api import Error
+
+        try:
+            self.page.reload(wait_until="load")
+        except Error as err:
+            raise self._error("could not reload", err) from None
 
     def evaluate(self, expression: str) -> Any:
-        """Evaluates JS in the page and returns its (JSON) value."""
-        result = self.send(
-            "Runtime.evaluate",
-            {"expression": expression, "returnByValue": True, "awaitPromise": True},
-        )
-        if "exceptionDetails" in result:
-            raise BrowserError(f"JS error in {expression!r}: {result['exceptionDetails']}")
-        return result.get("result", {}).get("value")
+        """Evaluates a JS expression in the page and returns its (JSON) value; a promise is
+        awaited."""
+        from playwright.sync_api import Error
+
+        try:
+            return self.page.evaluate(expression)
+        except Error as err:
+            raise self._error(f"JS error in {expression!r}", err) from None
 
     def wait_for(self, expression: str, timeout: float = 30.0, interval: float = 0.2) -> Any:
-        """Polls a JS expression until it is truthy; returns its value."""
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                value = self.evaluate(expression)
-            except BrowserError:
-                value = None
-            if value:
-                return value
-            if time.monotonic() > deadline:
-                raise BrowserError(f"timed out after {timeout} s waiting for {expression!r}")
-            time.sleep(interval)
+        """Polls a JS expression until it is truthy (an exception counts as false); returns its
+        value."""
+        from playwright.sync_api import Error
+
+        guarded = f"() => {{ try {{ return ({expression}); }} catch (e) {{ return null; }} }}"
+        try:
+            handle = self.page.wait_for_function(
+                guarded, polling=interval * 1000, timeout=timeout * 1000
+            )
+            return handle.json_value()
+        except Error as err:
+            raise self._error(
+                f"timed out after {timeout} s waiting for {expression!r}", err
+            ) from None
 
     def screenshot(self) -> np.ndarray:
         """What the tab shows now: uint8 [H, W, 3]."""
         from PIL import Image
 
-        data = self.send("Page.captureScreenshot", {"format": "png"})["data"]
-        image = Image.open(io.BytesIO(base64.b64decode(data))).convert("RGB")
-        return np.asarray(image)
+        data = self.page.screenshot(type="png")
+        return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
 
     def wait_for_image(
         self, predicate: Callable[[np.ndarray], bool], timeout: float = 60.0, interval: float = 0.5
@@ -247,55 +210,55 @@ class Page:
                 raise BrowserError(f"timed out after {timeout} s waiting for the page to render")
             time.sleep(interval)
 
-    def element_center(self, text: str, selector: str = "button") -> tuple[float, float]:
-        """Centre (CSS pixels) of the first visible `selector` element whose text is `text`.
+    def js_heap_mb(self) -> float:
+        """The tab's JavaScript heap in use, MB (DevTools' Runtime.getHeapUsage through
+        Playwright's CDP session: exact, where performance.memory is rounded)."""
+        if self._cdp is None:
+            self._cdp = self.page.context.new_cdp_session(self.page)
+        return self._cdp.send("Runtime.getHeapUsage")["usedSize"] / 2**20
 
-        Waits until the element has stopped moving (two reads 0.1 s apart agree) and is the
-        topmost element at its centre, so a click lands on it even while the page re-renders.
-        """
-        js = f"""
-        (() => {{
-          for (const el of document.querySelectorAll({json.dumps(selector)})) {{
-            if (el.innerText.trim() !== {json.dumps(text)}) continue;
-            el.scrollIntoView({{block: "center", behavior: "instant"}});
-            const r = el.getBoundingClientRect();
-            if (r.width <= 0 || r.height <= 0) continue;
-            const x = r.x + r.width / 2, y = r.y + r.height / 2;
-            const hit = document.elementFromPoint(x, y);
-            return [x, y, hit !== null && (hit === el || el.contains(hit))];
-          }}
-          return null;
-        }})()
-        """
-        deadline = time.monotonic() + 30.0
-        last = None
-        while True:
-            found = self.wait_for(js, timeout=max(1.0, deadline - time.monotonic()))
-            center = (float(found[0]), float(found[1]))
-            if found[2] and center == last:
-                return center
-            if time.monotonic() > deadline:
-                raise BrowserError(f"the {selector} {text!r} never held still and on top")
-            last = center
-            time.sleep(0.1)
+    def locator(self, text: str, selector: str = "button") -> Any:
+        """Playwright's locator of the first visible `selector` element whose text is `text`."""
+        exact = re.compile(rf"^\s*{re.escape(text)}\s*$")
+        return self.page.locator(selector).filter(has_text=exact, visible=True).first
+
+    def element_center(self, text: str, selector: str = "button") -> tuple[float, float]:
+        """Centre (CSS pixels) of the first visible `selector` element whose text is `text`,
+        scrolled into view once it is visible and holds still."""
+        from playwright.sync_api import Error
+
+        target = self.locator(text, selector)
+        try:
+            target.scroll_into_view_if_needed()
+            box = target.bounding_box()
+        except Error as err:
+            raise self._error(f"no {selector} {text!r} to be seen", err) from None
+        if box is None:
+            raise BrowserError(f"the {selector} {text!r} is not displayed")
+        return box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
 
     def click(self, x: float, y: float) -> None:
         """A real left click at (x, y): mouse moved, pressed and released by the browser."""
-        base = {"x": x, "y": y, "button": "left", "clickCount": 1}
-        self.send("Page.bringToFront")
-        self.send("Input.dispatchMouseEvent", {"type": "mouseMoved", "x": x, "y": y})
-        self.send("Input.dispatchMouseEvent", {"type": "mousePressed", **base})
-        self.send("Input.dispatchMouseEvent", {"type": "mouseReleased", **base})
+        self.page.bring_to_front()
+        self.page.mouse.click(x, y)
 
     def click_text(self, text: str, selector: str = "button") -> None:
-        """Clicks the button (or `selector` element) labelled `text`."""
-        self.click(*self.element_center(text, selector))
+        """Clicks the button (or `selector` element) labelled `text` with the mouse, once
+        Playwright sees it visible, still, enabled and on top at its centre."""
+        from playwright.sync_api import Error
+
+        self.page.bring_to_front()
+        try:
+            self.locator(text, selector).click()
+        except Error as err:
+            raise self._error(f"could not click the {selector} {text!r}", err) from None
 
     def close(self) -> None:
         """Closes the tab (the page's websocket to the server goes away with it)."""
         if not self.closed:
-            self.browser.send("Target.closeTarget", {"targetId": self.target_id})
             self.closed = True
+            with contextlib.suppress(Exception):
+                self.page.close()
             if self in self.browser.pages:
                 self.browser.pages.remove(self)
 
@@ -326,18 +289,25 @@ def team_pixels(image: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def require_chromium() -> str:
-    """For tests: the Chromium path; skips without one, but fails under CI=true (the browser
-    tests must run in CI)."""
+    """For tests: the Chromium path; skips without one (or without Playwright), but fails under
+    CI=true (the browser tests must run in CI)."""
+    import importlib.util
+
     import pytest
 
     path = find_chromium()
+    missing = None
     if path is None:
+        missing = "no Chromium was found (apt-get install chromium, or set $CHROMIUM)"
+    elif importlib.util.find_spec("playwright") is None:
+        missing = "Playwright is not installed (pip install -e '.[dev]')"
+    if missing is not None:
         if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
             pytest.fail(
-                "CI is set but no Chromium was found: the viewer's browser tests must run "
-                "(.ci/run installs Debian's chromium; or set $CHROMIUM)"
+                f"CI is set but {missing}: the viewer's browser tests must run "
+                "(.ci/run installs Debian's chromium)"
             )
-        pytest.skip("no Chromium found (apt-get install chromium) for the viewer's browser tests")
+        pytest.skip(f"{missing}: the viewer's browser tests need it")
     return path
 
 

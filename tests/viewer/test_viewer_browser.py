@@ -74,6 +74,33 @@ def moved(page, seconds: float = 1.5, tries: int = 3) -> int:
     return best
 
 
+WEBGL_RENDERER = """(() => {
+  const gl = document.createElement("canvas").getContext("webgl2");
+  if (!gl) return null;
+  const info = gl.getExtension("WEBGL_debug_renderer_info");
+  return gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER);
+})()"""
+
+
+def test_chromium_renders_webgl_in_software_and_reports_page_errors(browser):
+    """WebGL 2 on SwiftShader (the flags of SPEC 7); console errors and uncaught exceptions of a
+    page are collected in `page.errors` (the soak counts them)."""
+    page = browser.new_page(
+        "data:text/html,<button>Go</button><script>console.error('logged');"
+        "setTimeout(() => { throw new Error('uncaught'); }, 0)</script>"
+    )
+    try:
+        renderer = page.evaluate(WEBGL_RENDERER)
+        assert renderer is not None and "SwiftShader" in renderer, renderer
+        page.wait_for("document.readyState === 'complete'")
+        # Page events reach Python while a driver call runs: evaluate() lets them in.
+        wait_until(lambda: page.evaluate("true") and len(page.errors) >= 2, timeout=10)
+        assert page.errors == ["console.error: logged", "pageerror: uncaught"]
+        assert page.element_center("Go")[0] > 0
+    finally:
+        page.close()
+
+
 def test_page_shows_both_teams(browser, live_viewer, tmp_path):
     page, image = open_viewer(browser, live_viewer.url)
     try:
