@@ -20,6 +20,8 @@ from pe_mjx import interrupts
 from pe_mjx.config import PRESETS, EnvConfig, PresetName
 from pe_mjx.experiment import Backend, ExperimentConfig
 from pe_mjx.names import BACKENDS, BUILTIN_POLICIES
+from pe_mjx.ppo.distributed import DEFAULT_HEARTBEAT_TIMEOUT_S
+from pe_mjx.ppo.distributed import FLAGS as GROUP_SETTINGS
 from pe_mjx.reproduce import ReproduceArgs
 from pe_mjx.viewer.options import ViewerOptions
 
@@ -117,14 +119,17 @@ class TrainArgs:
     """How many processes train together (or JAX_NUM_PROCESSES)."""
     process_id: int | None = None
     """This process's index in [0, --num-processes) (or JAX_PROCESS_ID); 0 writes the logs."""
-    heartbeat_timeout: int = 100
+    heartbeat_timeout: int = DEFAULT_HEARTBEAT_TIMEOUT_S
     """Seconds without a sign of life after which a process of the group counts as lost."""
 
 
-GROUP_FLAGS = ("--coordinator-address", "--num-processes", "--process-id", "--heartbeat-timeout")
+GROUP_FLAGS = (*GROUP_SETTINGS.values(), "--heartbeat-timeout")
+"""The flags that describe a group of processes, read before the full parse (`join_group`)."""
 
 
-def _prescan(argv: list[str], flags: tuple[str, ...] = ("--preset", "--config", "--resume")):
+def _prescan(
+    argv: list[str], flags: tuple[str, ...] = ("--preset", "--config", "--resume")
+) -> dict[str, str]:
     """The values of `flags` (by default --preset, --config and --resume, which decide the
     defaults of every other flag), read before the full parse."""
     found: dict[str, str] = {}
@@ -166,7 +171,7 @@ def train_defaults(argv: list[str]) -> TrainArgs:
 def join_group(argv: list[str]) -> None:
     """Joins the group of processes that the train flags (or JAX_* variables) describe, before
     anything asks JAX for a device; a lone process does nothing."""
-    from pe_mjx.ppo.distributed import DEFAULT_HEARTBEAT_TIMEOUT_S, group_from, initialize
+    from pe_mjx.ppo.distributed import group_from, initialize
 
     found = _prescan(argv, GROUP_FLAGS)
     numbers: dict[str, int] = {}

@@ -85,11 +85,12 @@ def ratio_ci(num: np.ndarray, den: np.ndarray, seed: int = 0) -> tuple[float, fl
     from scipy import stats
 
     num, den = np.asarray(num, float), np.asarray(den, float)
-    ratio = num.mean() / den.mean() if den.mean() > 0 else float("inf")
 
     def mean_ratio(n: np.ndarray, d: np.ndarray, axis: int = -1) -> np.ndarray:
         n_mean, d_mean = n.mean(axis=axis), d.mean(axis=axis)
         return np.where(d_mean > 0, n_mean / np.maximum(d_mean, 1e-12), np.inf)
+
+    ratio = mean_ratio(num, den)
 
     # Infinite resamples make scipy's standard error (unused here) inf - inf: no warning for it.
     with np.errstate(invalid="ignore"), warnings.catch_warnings():

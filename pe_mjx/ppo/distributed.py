@@ -43,6 +43,7 @@ FLAGS = {
     "num_processes": "--num-processes",
     "process_id": "--process-id",
 }
+"""The `pe-mjx train` flags of a group's settings (the command line reads them first)."""
 DEFAULT_HEARTBEAT_TIMEOUT_S = 100
 """jax's default: seconds without a heartbeat after which the coordinator declares a process
 lost (and jax ends the group)."""
@@ -170,6 +171,7 @@ def lost_process_guard() -> Iterator[None]:
 __all__ = [
     "DEFAULT_HEARTBEAT_TIMEOUT_S",
     "ENV_VARS",
+    "FLAGS",
     "Group",
     "ProcessLostError",
     "group_from",
