@@ -455,7 +455,10 @@ def run_view(args: ViewArgs) -> None:
         viewer = start_viewer(options, replay=traj, wait=False)
         print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)
         while True:
-            time.sleep(3600)
+            # Short sleeps: a SIGINT delivered to another thread (the server's) only sets a flag
+            # that this thread checks when its sleep returns; a long sleep held Ctrl-C back for
+            # up to an hour (a CI test that hung).
+            time.sleep(0.2)
     except KeyboardInterrupt:
         pass
     finally:

@@ -13,6 +13,7 @@ kill during a save leaves the previous step loadable; the manager keeps the last
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
 import sys
@@ -38,6 +39,7 @@ from pe_mjx.policy.store import (
     read_meta,
     short_error,
 )
+from pe_mjx.ppo.distributed import ProcessLostError, is_lost_process_error
 from pe_mjx.ppo.train import Trainer, TrainState
 
 
@@ -154,7 +156,11 @@ def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
     }
     _check_writable(run_dir / CHECKPOINT_DIR, step)
     try:
-        with interrupts.deferred(), manager(run_dir, create=True) as mngr:
+        with (
+            interrupts.deferred(),
+            _lost_process_logs_dropped(),
+            manager(run_dir, create=True) as mngr,
+        ):
             mngr.save(
                 step,
                 args=ocp.args.Composite(
@@ -166,10 +172,38 @@ def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
             )
             mngr.wait_until_finished()
     except Exception as err:
+        if jax.process_count() > 1 and is_lost_process_error(err):
+            # Another process died while this one waited for it at the save's barrier: the
+            # same stop as a failed collective (the previous checkpoint is the intact one).
+            raise ProcessLostError(
+                f"process {jax.process_index()} of {jax.process_count()}: another process of "
+                f"the group stopped while checkpoint {step} was written; stopping this one. "
+                f"The last complete checkpoint is intact: resume with --resume on any number "
+                f"of processes"
+            ) from None
         raise CheckpointWriteError(
             f"cannot write checkpoint {step} to {run_dir / CHECKPOINT_DIR}: {short_error(err)}"
         ) from None
     return step
+
+
+class _DropLostProcessErrors(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        err = record.exc_info[1] if record.exc_info else None
+        return err is None or not is_lost_process_error(err)
+
+
+@contextlib.contextmanager
+def _lost_process_logs_dropped() -> Iterator[None]:
+    """orbax's save threads log a barrier that failed, traceback and all, before the save
+    raises it; when it failed because another process died, the command line's one line says
+    so, and the traceback is left out."""
+    absl_logger, drop = logging.getLogger("absl"), _DropLostProcessErrors()
+    absl_logger.addFilter(drop)
+    try:
+        yield
+    finally:
+        absl_logger.removeFilter(drop)
 
 
 def _require_train_item(run_dir: Path, step: int) -> None:

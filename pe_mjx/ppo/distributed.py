@@ -141,13 +141,28 @@ def is_primary() -> bool:
     return jax.process_index() == 0
 
 
-_LOST_MARKERS = ("connection closed by peer", "gloo", "coordination service", "heartbeat")
+_LOST_MARKERS = (
+    "connection closed by peer",
+    "gloo",
+    "coordination service",
+    "coordinationservice",
+    "heartbeat",
+    "task is set to error",
+)
 
 
 def is_lost_process_error(err: BaseException) -> bool:
-    """Whether `err` is a collective that failed because another process went away."""
-    text = str(err).lower()
-    return any(marker in text for marker in _LOST_MARKERS)
+    """Whether `err`, or an error it was raised from, is a collective or a barrier that failed
+    because another process went away. orbax reports a barrier of a checkpoint save that failed
+    that way as a plain `TimeoutError` raised from the coordination service's error."""
+    seen: set[int] = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        text = str(err).lower()
+        if any(marker in text for marker in _LOST_MARKERS):
+            return True
+        err = err.__cause__ or err.__context__
+    return False
 
 
 @contextmanager

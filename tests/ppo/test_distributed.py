@@ -116,6 +116,16 @@ def test_lost_process_errors_are_recognised():
     lost = ValueError("UNKNOWN: Gloo all-reduce failed: [pair.cc:547] Connection closed by peer")
     assert is_lost_process_error(lost)
     assert not is_lost_process_error(ValueError("invalid config: ppo.num_envs=3"))
+    # orbax reports a save's barrier that failed because a process died as a TimeoutError
+    # raised from the coordination service's error (seen in CI).
+    try:
+        try:
+            raise RuntimeError("INTERNAL: Barrier failed because: Task 1 heartbeat timeout.")
+        except RuntimeError as cause:
+            raise TimeoutError("Timed out waiting for async_write_complete barrier") from cause
+    except TimeoutError as err:
+        assert is_lost_process_error(err)
+    assert not is_lost_process_error(TimeoutError("Timed out while waiting for a lock"))
 
 
 @pytest.mark.parametrize(
