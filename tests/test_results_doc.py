@@ -53,3 +53,21 @@ def test_the_per_method_means_in_results_md_are_those_paper_findings_wrote(data)
             f"| {p['travel']:.2f} | {e['success_conceded']:.3f} | {e['travel_forced']:.2f} |"
         )
         assert row in results.splitlines(), row
+
+
+def test_the_large_scale_table_is_the_one_tools_large_scale_wrote():
+    """Section 10 of results.md quotes docs/data/large-scale/summary.md row for row, and the
+    summary is made of the per-pairing reports beside it."""
+    results = (DOCS / "results.md").read_text()
+    section = results.split("## 10. Beyond the paper: 240-60-120", 1)[1]
+    summary_md = (DOCS / "data" / "large-scale" / "summary.md").read_text()
+    scene_rows = re.compile(r"\| \d+-\d+-\d+ \| ")
+    quoted = [row for row in _table_rows(section) if scene_rows.match(row)]
+    assert quoted and quoted == [row for row in _table_rows(summary_md) if scene_rows.match(row)]
+    summary = json.loads((DOCS / "data" / "large-scale" / "summary.json").read_text())
+    for scene, rows in summary["scenes"].items():
+        reports = sorted((DOCS / "data" / "large-scale" / scene).glob("*/results.json"))
+        pairings = [p for r in reports for p in json.loads(r.read_text())["pairings"]]
+        assert len(pairings) == len(rows), scene
+        rates = sorted(round(p["summary"]["success_rate"], 3) for p in pairings)
+        assert rates == sorted(r["success_rate"] for r in rows.values()), scene

@@ -12,11 +12,20 @@ packaged copy, as for the other shipped policies. Refuses to replace an existing
 
 writes the same policy-only copy to DEST/NAME instead, outside the package (no link): for
 policies the repository keeps so that its evaluations can be rerun, without installing them.
+
+    python tools/ship_policy.py RUN NAME --nearest-k 4
+
+ships the same parameters with *local attention*: both teams' networks keep only the k nearest
+entities of each type (`NetworkConfig.nearest_k`, pe_mjx/networks.py) before encoding. The
+encoders' parameters do not depend on how many entities they see, so this changes which tokens
+the network reads, not what it learned: no training. The copy's metadata and config.json record
+the new `nearest_k` and `derived_from` (the run, its step and its former network configs).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 from pathlib import Path
 
@@ -41,6 +50,9 @@ class Args:
     """Replace a shipped policy of that name."""
     dest: Path | None = None
     """Write to DEST/NAME rather than into the package (pe_mjx/assets/policies)."""
+    nearest_k: int | None = None
+    """Ship with local attention: both teams' networks read only the k nearest entities of each
+    type (the parameters are the run's, unchanged)."""
 
 
 def ship(args: Args) -> Path:
@@ -62,12 +74,43 @@ def ship(args: Args) -> Path:
         elif (src / item).exists():
             shutil.copy2(src / item, out / item)
     shutil.copy2(args.run / "config.json", dest / "config.json")
+    if args.nearest_k is not None:
+        with_nearest_k(dest, args.nearest_k, f"{args.run} step {step}")
     link = ROOT / "assets" / "policies" / args.name
     if args.dest is None and not link.is_symlink():
         link.symlink_to(Path("../../pe_mjx/assets/policies") / args.name)
     store.read_meta(dest)  # the shipped copy reads back
     print(f"shipped {args.run} step {step} ({meta['env_steps']:,} env steps) as {dest}")
     return dest
+
+
+def _set_nearest_k(tree: dict, k: int) -> dict:
+    """Sets `nearest_k` in every network config of a run's config or metadata tree."""
+    for team_configs in (tree.get("network_configs", {}),):
+        for net in team_configs.values():
+            net["nearest_k"] = k
+    experiment = tree.get("experiment", {})
+    for team in ("pursuer", "evader"):
+        if "network" in experiment.get(team, {}):
+            experiment[team]["network"]["nearest_k"] = k
+    return tree
+
+
+def with_nearest_k(run_copy: Path, k: int, source: str) -> None:
+    """Rewrites a policy-only copy (`ship`'s output) so that both teams' networks keep the k
+    nearest entities of each type; records where it came from. Parameters are untouched."""
+    if k < 1:
+        raise SystemExit(f"ship_policy: error: --nearest-k must be >= 1, got {k}")
+    step = store.latest_step(run_copy)
+    meta_file = run_copy / store.CHECKPOINT_DIR / str(step) / "meta" / "metadata"
+    meta = json.loads(meta_file.read_text())
+    before = json.loads(json.dumps(meta["network_configs"]))
+    meta_file.write_text(json.dumps(_set_nearest_k(meta, k)))
+    config_file = run_copy / "config.json"
+    config = _set_nearest_k(json.loads(config_file.read_text()), k)
+    config["derived_from"] = {"run": source, "network_configs": before, "nearest_k": k}
+    config_file.write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+    store.read_meta(run_copy)  # still valid
 
 
 if __name__ == "__main__":

@@ -55,7 +55,10 @@ def resolve_policy(
     counts = (trained.pursuer.num_agents, trained.evader.num_agents, trained.arena.num_obstacles)
     here = (env_config.pursuer.num_agents, env_config.evader.num_agents)
     here += (env_config.arena.num_obstacles,)
-    label = f"{team_letter(team)}_{net_config.encoder.upper()}({counts[0]},{counts[1]},{counts[2]})"
+    method = net_config.encoder.upper()
+    if net_config.nearest_k is not None:  # local attention: the k nearest of each type
+        method += f"-k{net_config.nearest_k}"
+    label = f"{team_letter(team)}_{method}({counts[0]},{counts[1]},{counts[2]})"
     note = ""
     if net_config.encoder == "mlp" and here != counts:
         # SPEC 3.1: an MLP cannot generalise; its input is padded/truncated to its training counts.
