@@ -126,12 +126,38 @@ def initialize(group: Group) -> None:
 
     # CPU processes need a collectives implementation to reach each other (GPUs use NCCL).
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    # A process that dies is then reported to the others as errors (a failed collective or
+    # barrier), which stop them with one line, instead of jax ending them with a fatal abort
+    # from its error-polling thread (a race with that line, seen in CI).
+    jax.config.update("jax_enable_recoverability", True)
     jax.distributed.initialize(
         coordinator_address=group.coordinator_address,
         num_processes=group.num_processes,
         process_id=group.process_id,
         heartbeat_timeout_seconds=group.heartbeat_timeout_s,
     )
+
+
+BARRIER_TIMEOUT_S = 3600
+"""How long a process waits at `barrier` for the others (compiling a large scene on a loaded
+CPU takes minutes)."""
+
+
+def barrier(name: str, timeout_s: int = BARRIER_TIMEOUT_S) -> None:
+    """Waits until every process of the group has reached `name` (a no-op for a lone process).
+
+    The coordination service's barrier, not a collective: the first gloo collective gives up
+    when the other processes are more than 30 s late ("Gloo context initialization failed:
+    GetKeyValue() timed out"), and a process that compiles on a busy machine can be later than
+    that. So the trainer compiles each program ahead of time and meets the others here before
+    running it. Each name may be used once per run."""
+    import jax
+
+    if jax.process_count() == 1:
+        return
+    from orbax.checkpoint import multihost
+
+    multihost.get_barrier_sync_fn()(key=name, timeout_ms=timeout_s * 1000)
 
 
 def is_primary() -> bool:
@@ -184,11 +210,13 @@ def lost_process_guard() -> Iterator[None]:
 
 
 __all__ = [
+    "BARRIER_TIMEOUT_S",
     "DEFAULT_HEARTBEAT_TIMEOUT_S",
     "ENV_VARS",
     "FLAGS",
     "Group",
     "ProcessLostError",
+    "barrier",
     "group_from",
     "initialize",
     "is_lost_process_error",

@@ -24,7 +24,7 @@ from pe_mjx.policy import store
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
 from pe_mjx.ppo import checkpoint
-from pe_mjx.ppo.distributed import is_primary, lost_process_guard
+from pe_mjx.ppo.distributed import barrier, is_primary, lost_process_guard
 from pe_mjx.ppo.train import Trainer, TrainState
 
 CONFIG_FILE = "config.json"
@@ -83,6 +83,22 @@ def saved_config(run_dir: str | Path) -> ExperimentConfig:
         if isinstance(err, store.CheckpointError):
             raise
         raise store.CheckpointError(f"{run_dir} holds an invalid config: {err}") from None
+
+
+def _compiled_iteration(iteration_fn: Any, state: Any, start: int) -> Any:
+    """The training iteration compiled ahead of time; in a group, returned once every process
+    has compiled it (`barrier`: the first collective would give up on a process still compiling
+    30 s after the others). A compiled program takes its inputs only in the shardings it was
+    compiled for, and XLA picks its own for the empty arrays of a scene (a lone evader's
+    teammates), so the state is put in those first (a no-op for every other array)."""
+    compiled = iteration_fn.lower(state).compile()
+    barrier(f"pe-mjx/compiled-iteration-{start}")
+    shardings = compiled.input_shardings[0][0]
+
+    def run(s: Any) -> Any:
+        return compiled(jax.device_put(s, shardings))
+
+    return run
 
 
 def resume_config(
@@ -268,6 +284,8 @@ def _train(
         bar.update(task, description=f"{config.preset} compiling...")
         if not progress and primary and start < end:
             _note(f"{config.preset}: compiling the training iteration...")
+        if start < end:
+            iteration_fn = _compiled_iteration(iteration_fn, state, start)
         tic = time.perf_counter()
         for it in range(start, end):
             state, metrics = iteration_fn(state)
@@ -309,6 +327,7 @@ def _train(
                         .lower(state, at)
                         .compile()
                     )
+                    barrier(f"pe-mjx/compiled-evaluation-{done_iters}")
                 eval_tic = time.perf_counter()
                 latest_eval = {
                     k: float(v) for k, v in jax.device_get(evaluate_fn(state, at)).items()

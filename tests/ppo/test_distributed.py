@@ -30,7 +30,7 @@ TINY = [
 ]
 TWO_ITERATIONS = [*TINY, "--env-steps", "128", "--eval-every", "2"]
 LONG = [*TINY, "--env-steps", "64000", "--eval-every", "0"]  # stopped long before its end
-TIMEOUT_S = 240
+TIMEOUT_S = 600  # a hang, not a slow machine: compiling alone took 3 min on a loaded 2-core one
 
 
 def free_port() -> int:
@@ -205,7 +205,9 @@ def test_a_group_run_resumes_on_one_process(two_runs):
 
 def test_a_process_that_dies_stops_the_group_with_one_line(tmp_path):
     run = tmp_path / "run"
-    procs = launch_group([*LONG, "--out", str(run)], 2, tmp_path, "p")
+    # Killed while process 0 waits at a save's barrier, it is noticed only when its heartbeats
+    # stop for --heartbeat-timeout: shorter than jax's 100 s, so that the test waits for it.
+    procs = launch_group([*LONG, "--heartbeat-timeout", "15", "--out", str(run)], 2, tmp_path, "p")
     try:
         deadline = time.monotonic() + TIMEOUT_S
         while not (run / "checkpoints" / "2").is_dir():
@@ -213,7 +215,7 @@ def test_a_process_that_dies_stops_the_group_with_one_line(tmp_path):
             assert procs[0].poll() is None, (tmp_path / "p-0.log").read_text()
             time.sleep(0.2)
         procs[1].send_signal(signal.SIGKILL)
-        code = procs[0].wait(timeout=60)  # well before jax's heartbeat timeout (100 s)
+        code = procs[0].wait(timeout=90)
     finally:
         for p in procs:
             if p.poll() is None:
