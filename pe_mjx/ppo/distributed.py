@@ -17,12 +17,18 @@ process sees); process 0 alone takes the run's lock and writes `config.json`, Te
 W&B and the progress bar. A checkpoint restores on any process count (`--resume` with another
 N, or with one process).
 
-When a process dies, the others' next collective fails ("connection closed by peer"): they stop
-with `ProcessLostError`, and the command line ends them at once with one line (jax's own exit
-would wait `heartbeat_timeout_s` for the lost process and then abort). The last checkpoint is
-intact (orbax renames a step into place only when every process finished writing it). A process
-that hangs instead of dying is detected by the coordinator after `heartbeat_timeout_s`, and jax
-ends the group.
+When a process dies, the others' next collective fails ("connection closed by peer"), or, when
+they wait at a checkpoint's barrier, the barrier fails once the coordinator has missed the dead
+process's heartbeats for `heartbeat_timeout_s` (`--heartbeat-timeout`): they stop with
+`ProcessLostError`, and the command line ends them at once with one line. The group runs with
+jax's recoverable tasks (`jax_enable_recoverability`; the coordinator says so in one warning at
+start), so that a lost process reaches the others as these errors and never as jax's fatal abort
+from its error-polling thread, which raced with that line. The last checkpoint is intact (orbax
+renames a step into place only when every process finished writing it).
+
+Before the first collective of a program the processes meet at `barrier` (the coordination
+service's, with a long timeout): gloo's first collective gives up on a process that is more
+than 30 s late, which a process still compiling on a busy machine can be.
 """
 
 from __future__ import annotations
