@@ -2,22 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from tests.tool_modules import load_tool
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location(
-        "paper_findings", ROOT / "tools" / "paper_findings.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("paper_findings")
 
 
 # success[evader][pursuer]: every method's pursuers and evaders, and the scripted teams

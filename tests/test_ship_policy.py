@@ -3,9 +3,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import jax
@@ -16,6 +14,7 @@ import pe_mjx
 from pe_mjx.policy.inference import normalize_obs
 from pe_mjx.policy.resolve import resolve_policy
 from pe_mjx.policy.store import read_meta
+from tests.tool_modules import load_tool
 
 ROOT = Path(__file__).resolve().parent.parent
 FULL = ROOT / "assets" / "policies" / "mix-20-5-8-3m"
@@ -23,11 +22,7 @@ LOCAL = "mix-20-5-8-3m-k4"
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("ship_policy", ROOT / "tools" / "ship_policy.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("ship_policy")
 
 
 @pytest.fixture(scope="module")
