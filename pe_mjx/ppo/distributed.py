@@ -20,11 +20,13 @@ N, or with one process).
 When a process dies, the others' next collective fails ("connection closed by peer"), or, when
 they wait at a checkpoint's barrier, the barrier fails once the coordinator has missed the dead
 process's heartbeats for `heartbeat_timeout_s` (`--heartbeat-timeout`): they stop with
-`ProcessLostError`, and the command line ends them at once with one line. The group runs with
-jax's recoverable tasks (`jax_enable_recoverability`; the coordinator says so in one warning at
-start), so that a lost process reaches the others as these errors and never as jax's fatal abort
-from its error-polling thread, which raced with that line. The last checkpoint is intact (orbax
-renames a step into place only when every process finished writing it).
+`ProcessLostError`, and the command line ends them at once with one line. In the second case
+the coordinator also tells every process that the group failed, and jax's error-polling thread
+then ends the process with a fatal log: whichever comes first ends it, the one line or jax's
+abort (jax's recoverable tasks, which would leave only the line, end each process without
+waiting for the others at shutdown, and the coordinator's host then vanishes under the rest).
+Either way the last checkpoint is intact (orbax renames a step into place only when every
+process finished writing it).
 
 Before the first collective of a program the processes meet at `barrier` (the coordination
 service's, with a long timeout): gloo's first collective gives up on a process that is more
@@ -132,10 +134,6 @@ def initialize(group: Group) -> None:
 
     # CPU processes need a collectives implementation to reach each other (GPUs use NCCL).
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
-    # A process that dies is then reported to the others as errors (a failed collective or
-    # barrier), which stop them with one line, instead of jax ending them with a fatal abort
-    # from its error-polling thread (a race with that line, seen in CI).
-    jax.config.update("jax_enable_recoverability", True)
     jax.distributed.initialize(
         coordinator_address=group.coordinator_address,
         num_processes=group.num_processes,

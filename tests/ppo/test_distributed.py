@@ -205,12 +205,15 @@ def test_a_group_run_resumes_on_one_process(two_runs):
 
 def test_a_process_that_dies_stops_the_group_with_one_line(tmp_path):
     run = tmp_path / "run"
-    # Killed while process 0 waits at a save's barrier, it is noticed only when its heartbeats
-    # stop for --heartbeat-timeout: shorter than jax's 100 s, so that the test waits for it.
-    procs = launch_group([*LONG, "--heartbeat-timeout", "15", "--out", str(run)], 2, tmp_path, "p")
+    # Checkpoints 100 iterations apart: process 1 is killed in an iteration, where process 0's
+    # next collective fails at once. (A kill while process 0 waits at a save's barrier is seen
+    # when the heartbeats stop, --heartbeat-timeout; then jax's own fatal abort may win the race
+    # with the one line: pe_mjx/ppo/distributed.py.)
+    args = [*LONG, "--checkpoint-every", "100", "--heartbeat-timeout", "15", "--out", str(run)]
+    procs = launch_group(args, 2, tmp_path, "p")
     try:
         deadline = time.monotonic() + TIMEOUT_S
-        while not (run / "checkpoints" / "2").is_dir():
+        while not (run / "checkpoints" / "100").is_dir():
             assert time.monotonic() < deadline, (tmp_path / "p-0.log").read_text()
             assert procs[0].poll() is None, (tmp_path / "p-0.log").read_text()
             time.sleep(0.2)
