@@ -24,6 +24,7 @@ the new `nearest_k` and `derived_from` (the run, its step and its former network
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import shutil
@@ -86,9 +87,8 @@ def ship(args: Args) -> Path:
 
 def _set_nearest_k(tree: dict, k: int) -> dict:
     """Sets `nearest_k` in every network config of a run's config or metadata tree."""
-    for team_configs in (tree.get("network_configs", {}),):
-        for net in team_configs.values():
-            net["nearest_k"] = k
+    for net in tree.get("network_configs", {}).values():
+        net["nearest_k"] = k
     experiment = tree.get("experiment", {})
     for team in ("pursuer", "evader"):
         if "network" in experiment.get(team, {}):
@@ -104,7 +104,7 @@ def with_nearest_k(run_copy: Path, k: int, source: str) -> None:
     step = store.latest_step(run_copy)
     meta_file = run_copy / store.CHECKPOINT_DIR / str(step) / "meta" / "metadata"
     meta = json.loads(meta_file.read_text())
-    before = json.loads(json.dumps(meta["network_configs"]))
+    before = copy.deepcopy(meta["network_configs"])
     meta_file.write_text(json.dumps(_set_nearest_k(meta, k)))
     config_file = run_copy / "config.json"
     config = _set_nearest_k(json.loads(config_file.read_text()), k)

@@ -39,7 +39,7 @@ from pe_mjx.policy.store import (
     read_meta,
     short_error,
 )
-from pe_mjx.ppo.distributed import ProcessLostError, is_lost_process_error
+from pe_mjx.ppo.distributed import is_lost_process_error
 from pe_mjx.ppo.train import Trainer, TrainState
 
 
@@ -174,13 +174,8 @@ def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
     except Exception as err:
         if jax.process_count() > 1 and is_lost_process_error(err):
             # Another process died while this one waited for it at the save's barrier: the
-            # same stop as a failed collective (the previous checkpoint is the intact one).
-            raise ProcessLostError(
-                f"process {jax.process_index()} of {jax.process_count()}: another process of "
-                f"the group stopped while checkpoint {step} was written; stopping this one. "
-                f"The last complete checkpoint is intact: resume with --resume on any number "
-                f"of processes"
-            ) from None
+            # same stop as a failed collective (`lost_process_guard` words it).
+            raise
         raise CheckpointWriteError(
             f"cannot write checkpoint {step} to {run_dir / CHECKPOINT_DIR}: {short_error(err)}"
         ) from None

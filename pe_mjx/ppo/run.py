@@ -88,17 +88,10 @@ def saved_config(run_dir: str | Path) -> ExperimentConfig:
 def _compiled_iteration(iteration_fn: Any, state: Any, start: int) -> Any:
     """The training iteration compiled ahead of time; in a group, returned once every process
     has compiled it (`barrier`: the first collective would give up on a process still compiling
-    30 s after the others). A compiled program takes its inputs only in the shardings it was
-    compiled for, and XLA picks its own for the empty arrays of a scene (a lone evader's
-    teammates), so the state is put in those first (a no-op for every other array)."""
+    30 s after the others). It takes the state in `Trainer.state_shardings`, as it returns it."""
     compiled = iteration_fn.lower(state).compile()
     barrier(f"pe-mjx/compiled-iteration-{start}")
-    shardings = compiled.input_shardings[0][0]
-
-    def run(s: Any) -> Any:
-        return compiled(jax.device_put(s, shardings))
-
-    return run
+    return compiled
 
 
 def resume_config(

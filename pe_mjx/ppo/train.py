@@ -151,9 +151,12 @@ class Trainer:
 
     def state_shardings(self, state: TrainState) -> Any:
         """Where each leaf of a train state lives: the env batch split over the mesh, the rest
-        replicated."""
+        replicated. Empty arrays (a lone evader's teammates) are replicated too, as XLA places
+        them in a compiled program: its inputs must come in the shardings it was compiled for."""
         return state.replace(
-            env_state=jax.tree.map(lambda _: self.batch_sharding, state.env_state),
+            env_state=jax.tree.map(
+                lambda x: self.batch_sharding if np.size(x) else self.replicated, state.env_state
+            ),
             teams=jax.tree.map(lambda _: self.replicated, state.teams),
             rng=self.replicated,
             iteration=self.replicated,
