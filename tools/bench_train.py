@@ -7,6 +7,8 @@ For each encoder and preset it times, jitted and warmed up, in the same run:
   * the rollout alone with the learned policies (env steps + network forward passes);
   * the rollout with both teams scripted-free: uniformly random masked actions (env steps only).
 Shares: env = env-only rollout; networks (forward) = rollout - env; update = iteration - rollout.
+"Update alone allows" = env steps per iteration / update time: the throughput if the env and the
+rollout cost nothing, a ceiling that only a faster PPO update can raise.
 Results go to a JSON file and a Markdown table (printed, and pasted into docs/benchmarks.md).
 """
 
@@ -95,6 +97,9 @@ def measure(config: ExperimentConfig, repeats: int, eager_reset: bool = False) -
         "share_env": t_env / t_iter,
         "share_forward": max(t_roll - t_env, 0.0) / t_iter,
         "share_update": max(t_iter - t_roll, 0.0) / t_iter,
+        # The most this iteration could do if the env and the rollout's forward passes cost
+        # nothing: what the PPO update alone allows.
+        "update_bound_env_steps_per_s": steps / max(t_iter - t_roll, 1e-9),
     }
 
 
@@ -129,6 +134,7 @@ def measure_peer(num_envs: int, unroll: int, repeats: int) -> dict:
         "share_env": None,
         "share_forward": None,
         "share_update": None,
+        "update_bound_env_steps_per_s": None,
     }
 
 
@@ -171,19 +177,23 @@ def table(runs: list[dict], machine: dict) -> str:
         "PPO 2 epochs x 4 minibatches.",
         "",
         "| preset | encoder | backend | reset | envs x unroll | env-steps/s | agent-steps/s | "
-        "env | forward | update | compile s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "env | forward | update | update alone allows | compile s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
 
     def share(x):
         return "-" if x is None else f"{x:.0%}"
+
+    def bound(r):  # rows of files written before the column existed have none
+        x = r.get("update_bound_env_steps_per_s")
+        return "-" if x is None else f"{x:,.0f}"
 
     for r in runs:
         lines.append(
             f"| {r['preset']} | {r['encoder']} | {r['backend']} | {r['reset']} | {r['num_envs']}x"
             f"{r['unroll_length']} | {r['env_steps_per_s']:,.0f} | {r['agent_steps_per_s']:,.0f} "
             f"| {share(r['share_env'])} | {share(r['share_forward'])} | {share(r['share_update'])} "
-            f"| {r['compile_s']:.0f} |"
+            f"| {bound(r)} | {r['compile_s']:.0f} |"
         )
     return "\n".join(lines)
 
