@@ -42,7 +42,9 @@ def outcome_counts(cause: Any, distance: Any, num_pursuers: int) -> dict[str, An
     out["success_rate"] = out["evaders_incapacitated"] / out["evaders_present"]
     out["pursuit_cost"] = out["pursuers_present"] - out["pursuers_active"]
     travelled = (distance[..., :p] * present["pursuers"]).sum(axis=-1)
-    out["travel_distance"] = travelled / out["pursuers_present"]
+    # In the distances' dtype: numpy divides float32 by an integer count in float64; rounded back,
+    # a scene with every agent present gives exactly the plain mean of earlier versions.
+    out["travel_distance"] = (travelled / out["pursuers_present"]).astype(distance.dtype)
     return out
 
 

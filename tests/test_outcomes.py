@@ -33,3 +33,14 @@ def test_batched_numpy_and_jax_agree():
         np.testing.assert_allclose(np.asarray(device[key]), host[key], err_msg=key)
     np.testing.assert_array_equal(host["success_rate"], [0.5, 0.0])
     np.testing.assert_array_equal(host["pursuit_cost"], [1, 1])
+
+
+def test_travel_distance_of_float32_episodes_is_their_plain_mean():
+    # Every pursuer present: exactly the float32 mean (what evaluations reported before absent
+    # agents existed), in float32, not a float64 quotient that differs in the last digits.
+    rng = np.random.default_rng(0)
+    distance = rng.uniform(0.0, 20.0, size=(64, 25)).astype(np.float32)
+    cause = np.zeros((64, 25), np.int32)
+    out = outcome_counts(cause, distance, num_pursuers=20)
+    assert out["travel_distance"].dtype == np.float32
+    np.testing.assert_array_equal(out["travel_distance"], distance[:, :20].mean(axis=-1))
