@@ -23,7 +23,7 @@ from pe_mjx.names import OBSERVATION_KEYS, other_team
 from pe_mjx.networks import greedy_actions
 from pe_mjx.policy.export_loader import FORMAT, META, PROGRAM, VERSION
 from pe_mjx.policy.inference import dummy_obs, normalize_obs
-from pe_mjx.policy.store import CheckpointError, restore_policy_params
+from pe_mjx.policy.store import restore_policy_params
 from pe_mjx.stages.dynamics import action_table
 
 INPUTS = OBSERVATION_KEYS
@@ -41,14 +41,8 @@ def export_policy(
       team: "pursuer" or "evader".
       config: the scene whose counts fix the input shapes (default: the run's own scene).
     """
-    network, state, net_config, meta = restore_policy_params(run_dir, team)
-    config = EnvConfig.from_dict(meta["env_config"]) if config is None else config
-    have, want = int(meta["num_actions"][team]), config.team(team).num_actions
-    if have != want:
-        raise CheckpointError(
-            f"the {team} policy in {run_dir} has {have} actions but the {config.name} {team}s "
-            f"have {want}"
-        )
+    network, state, net_config, config, _, meta = restore_policy_params(run_dir, team, config)
+    num_actions = config.team(team).num_actions
     params, normalizer = state["params"], state["normalizer"]
 
     def greedy(*arrays: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -70,7 +64,11 @@ def export_policy(
         ],
         "outputs": [
             {"name": "actions", "shape": [config.team(team).num_agents], "dtype": "int32"},
-            {"name": "logits", "shape": [config.team(team).num_agents, want], "dtype": "float32"},
+            {
+                "name": "logits",
+                "shape": [config.team(team).num_agents, num_actions],
+                "dtype": "float32",
+            },
         ],
         "action_table": {"v": v.tolist(), "omega": omega.tolist()},
         "counts": {

@@ -44,14 +44,8 @@ def resolve_policy(
         if env_config is None:
             raise ValueError(f"the {name} policy needs the env config of the scene it plays")
         return make_policy(name, env_config, team)
-    network, variables, net_config, meta = restore_policy_params(spec, team)
-    trained = EnvConfig.from_dict(meta["env_config"])
-    env_config = trained if env_config is None else env_config
-    have, want = int(meta["num_actions"][team]), env_config.team(team).num_actions
-    if have != want:
-        raise CheckpointError(
-            f"the {team} policy in {spec} has {have} actions but this scene's {team}s have {want}"
-        )
+    restored = restore_policy_params(spec, team, env_config)
+    network, variables, net_config, env_config, trained, meta = restored
     counts = (trained.pursuer.num_agents, trained.evader.num_agents, trained.arena.num_obstacles)
     here = (env_config.pursuer.num_agents, env_config.evader.num_agents)
     here += (env_config.arena.num_obstacles,)
@@ -65,6 +59,7 @@ def resolve_policy(
         note = "mlp-padded"
         label += "*"
     net = meta["network_configs"][team]
+    num_actions = int(meta["num_actions"][team])
     return learned_policy(
         team,
         network,
@@ -73,7 +68,7 @@ def resolve_policy(
         source=str(spec),
         label=label,
         deterministic=deterministic,
-        shape_key=f"net:{have}:{deterministic}:{json.dumps(net, sort_keys=True)}",
+        shape_key=f"net:{num_actions}:{deterministic}:{json.dumps(net, sort_keys=True)}",
         note=note,
     )
 

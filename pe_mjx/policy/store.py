@@ -18,7 +18,7 @@ import contextlib
 import logging
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NamedTuple, NoReturn
 
 import jax
 import jax.numpy as jnp
@@ -192,11 +192,22 @@ def everywhere(abstract: Any) -> Any:
     )
 
 
+class RestoredPolicy(NamedTuple):
+    """One team's learned policy as a run stored it, with the configs parsed once."""
+
+    network: Any  # the flax module
+    variables: Any  # {"params", "normalizer"}
+    net_config: NetworkConfig
+    env_config: EnvConfig  # the scene it will play: the one asked for, else its training scene
+    trained: EnvConfig  # the scene it was trained in
+    meta: dict[str, Any]
+
+
 def restore_policy_params(
-    run_dir: str | Path, team: str
-) -> tuple[Any, Any, NetworkConfig, dict[str, Any]]:
-    """(network, {"params", "normalizer"}, network config, meta) of one team of a run (a run
-    directory or a shipped policy's name)."""
+    run_dir: str | Path, team: str, scene: EnvConfig | None = None
+) -> RestoredPolicy:
+    """One team of a run (a run directory or a shipped policy's name), for playing in `scene`
+    (default: the scene it was trained in), whose action count for `team` must be the run's."""
     run_dir = resolve_run(run_dir)
     meta = read_meta(run_dir)
     if team not in TEAMS:
@@ -207,12 +218,19 @@ def restore_policy_params(
             f"run {run_dir} did not learn a {team} policy (learned teams: {learned})"
         )
     try:
-        env_config = EnvConfig.from_dict(meta["env_config"])
+        trained = EnvConfig.from_dict(meta["env_config"])
         net_config = NetworkConfig.from_dict(meta["network_configs"][team])
     except (TypeError, ValueError) as err:
         raise CheckpointError(f"checkpoint in {run_dir} has an invalid config: {err}") from None
-    network = make_network(net_config, int(meta["num_actions"][team]))
-    obs = jax.eval_shape(lambda: dummy_obs(env_config, team))  # shapes only: no allocation
+    scene = trained if scene is None else scene
+    have, want = int(meta["num_actions"][team]), scene.team(team).num_actions
+    if have != want:
+        raise CheckpointError(
+            f"the {team} policy in {run_dir} has {have} actions but this scene's {team}s "
+            f"have {want}"
+        )
+    network = make_network(net_config, have)
+    obs = jax.eval_shape(lambda: dummy_obs(trained, team))  # shapes only: no allocation
     abstract = everywhere(
         {
             "params": jax.eval_shape(network.init, jax.random.key(0), obs),
@@ -235,7 +253,7 @@ def restore_policy_params(
             f"the {team} policy in {run_dir} (step {meta['step']}) holds non-finite parameters "
             f"(NaN or inf): the run diverged; play an earlier checkpoint or retrain"
         )
-    return network, restored, net_config, meta
+    return RestoredPolicy(network, restored, net_config, scene, trained, meta)
 
 
 def all_finite(tree: Any) -> bool:

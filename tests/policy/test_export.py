@@ -111,7 +111,8 @@ def _live_logits(run: Path):
     from pe_mjx.policy.inference import normalize_obs
     from pe_mjx.policy.store import restore_policy_params
 
-    network, state, _, _ = restore_policy_params(run, "pursuer")
+    restored = restore_policy_params(run, "pursuer")
+    network, state = restored.network, restored.variables
 
     def logits(obs):
         return network.apply(state["params"], normalize_obs(obs, state["normalizer"]))[0]

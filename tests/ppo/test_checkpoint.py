@@ -79,7 +79,7 @@ def test_load_policy_plays_in_the_env(runs):
             assert np.asarray(state.obs[team]["action_mask"])[np.arange(len(a)), a].all()
         state = new
     # The restored parameters are those of the run.
-    _, restored, _, _ = store.restore_policy_params(root / "straight", "pursuer")
+    restored = store.restore_policy_params(root / "straight", "pursuer").variables
     assert _max_diff(restored["params"], straight.teams["pursuer"].params) == 0.0
     # Same policy object runs unchanged at another scale (MIX is count-independent).
     big = pe_mjx.make("8-2-4", backend="kinematic")
