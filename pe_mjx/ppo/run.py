@@ -61,14 +61,38 @@ def code_version() -> dict[str, Any]:
     return out
 
 
-def _write_config(run_dir: Path, trainer: Trainer) -> None:
+MAX_CONFIG_BYTES = 1 << 20  # an earlier config.json read back for its start history
+
+
+def _earlier_starts(run_dir: Path) -> list[dict[str, Any]]:
+    """The `starts` of the run's existing config.json (none if absent, too large or malformed:
+    the history is a record, never a reason to stop a run)."""
+    path = run_dir / CONFIG_FILE
+    try:
+        if not path.is_file() or path.stat().st_size > MAX_CONFIG_BYTES:
+            return []
+        starts = json.loads(path.read_text()).get("starts", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    if not isinstance(starts, list):
+        return []
+    return [s for s in starts if isinstance(s, dict) and isinstance(s.get("iteration"), int)]
+
+
+def _write_config(run_dir: Path, trainer: Trainer, start: int) -> None:
     """`config.json`: the whole experiment (rerun it with `pe-mjx train --config`), what it
-    resolved to, and the code version."""
+    resolved to, and the code version; `starts` lists every (re)start of the run with the
+    iteration it started from and the code version it ran, so a run resumed on newer code
+    keeps the record of the old."""
+    version = code_version()
+    starts = [s for s in _earlier_starts(run_dir) if s["iteration"] < start]
+    starts.append({"iteration": start, "code_version": version})
     payload = {
         "experiment": trainer.config.to_dict(),
         "env_config": trainer.env_config.to_dict(),
         "network_configs": {t: c.to_dict() for t, c in trainer.network_configs.items()},
-        "code_version": code_version(),
+        "code_version": version,
+        "starts": starts,
     }
     tmp = run_dir / f"{CONFIG_FILE}.tmp"
     tmp.write_text(json.dumps(payload, indent=2, sort_keys=True))
@@ -238,7 +262,7 @@ def _train(
     primary = is_primary()  # in a group, process 0 alone writes files and shows progress
     progress = progress and primary
     if primary:
-        _write_config(run_dir, trainer)
+        _write_config(run_dir, trainer, int(state.iteration))
     iteration_fn = jax.jit(
         trainer.iteration,
         donate_argnums=0,

@@ -221,6 +221,10 @@ def test_cli_train_runs_logs_checkpoints_and_resumes(tmp_path):
     assert again.returncode == 0, again.stderr[-3000:]
     assert store.read_meta(out)["iteration"] == 4
     assert "env steps" in again.stdout
+    # config.json keeps every start of the run with the code it ran.
+    starts = json.loads((out / "config.json").read_text())["starts"]
+    assert [s["iteration"] for s in starts] == [0, 2]
+    assert all(s["code_version"]["pe_mjx"] for s in starts)
     # Starting a new run over an existing one is refused; nothing is overwritten.
     clash = subprocess.run([*exe, *flags], capture_output=True, text=True, timeout=900)
     assert clash.returncode != 0 and "already holds a run" in clash.stderr
