@@ -117,11 +117,18 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
     for table in args.tables:
         scene, p_scale, e_scale = table_scales(table, args.transfer_evaders)
         out = args.out / f"table-{table}"
+        pursuers, evaders = found_runs(args, p_scale), found_runs(args, e_scale)
         if (out / "results.json").exists():
             done[table] = json.loads((out / "results.json").read_text())
+            played = {p[team]["source"] for p in done[table]["pairings"] for team in TEAMS}
+            unplayed = sorted(set(pursuers + evaders) - played)
+            if unplayed:  # kept as it is, but not silently stale
+                print(
+                    f"table {table}: kept {out / 'results.json'}, which does not play "
+                    f"{', '.join(unplayed)}; delete {out} to play them"
+                )
             continue
 
-        pursuers, evaders = found_runs(args, p_scale), found_runs(args, e_scale)
         if not pursuers or not evaders:
             print(f"table {table}: no runs for it yet, skipped")
             continue

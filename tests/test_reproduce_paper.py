@@ -115,3 +115,33 @@ def test_a_suffix_with_a_path_in_it_is_one_line_error(tmp_path):
     assert out.stderr.startswith("pe-mjx: error:") and "--suffix" in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_kept_table_names_the_runs_it_does_not_play(tmp_path, capsys):
+    # A table whose results.json exists is kept; a run found since (a method added) is named,
+    # with how to play it, instead of the table going silently stale.
+    import json
+
+    from pe_mjx.reproduce import ReproduceArgs, _evaluate
+
+    policies = ROOT / "pe_mjx" / "assets" / "policies"
+    for name in ("mix-20-5-8", "mean-20-5-8"):
+        shutil.copytree(policies / name, tmp_path / "runs" / name)
+    mix = str(tmp_path / "runs" / "mix-20-5-8")
+    table = tmp_path / "out" / "table-III"
+    table.mkdir(parents=True)
+    kept = {"pairings": [{"pursuer": {"source": mix}, "evader": {"source": "scripted"}}]}
+    (table / "results.json").write_text(json.dumps(kept))
+    args = ReproduceArgs(
+        runs=tmp_path / "runs", out=tmp_path / "out", encoders=("mix", "mean"), tables=("III",)
+    )
+    assert _evaluate(args) == {"III": kept}
+    said = capsys.readouterr().out
+    assert f"does not play {tmp_path / 'runs' / 'mean-20-5-8'}; delete {table}" in said
+    assert mix + "," not in said
+    # Once every run it finds is in the table, nothing is said.
+    mean = str(tmp_path / "runs" / "mean-20-5-8")
+    kept["pairings"].append({"pursuer": {"source": "scripted"}, "evader": {"source": mean}})
+    (table / "results.json").write_text(json.dumps(kept))
+    _evaluate(args)
+    assert "does not play" not in capsys.readouterr().out
