@@ -66,26 +66,32 @@ MAX_CONFIG_BYTES = 1 << 20  # an earlier config.json read back for its start his
 
 def _earlier_starts(run_dir: Path) -> list[dict[str, Any]]:
     """The `starts` of the run's existing config.json (none if absent, too large or malformed:
-    the history is a record, never a reason to stop a run)."""
+    the history is a record, never a reason to stop a run). A config.json written before
+    `starts` existed gives its one code version, as a start whose iteration is not known."""
     path = run_dir / CONFIG_FILE
     try:
         if not path.is_file() or path.stat().st_size > MAX_CONFIG_BYTES:
             return []
-        starts = json.loads(path.read_text()).get("starts", [])
+        saved = json.loads(path.read_text())
+        starts = saved.get("starts")
+        if starts is None and isinstance(saved.get("code_version"), dict):
+            starts = [{"iteration": None, "code_version": saved["code_version"]}]
     except (OSError, ValueError, AttributeError):
         return []
     if not isinstance(starts, list):
         return []
-    return [s for s in starts if isinstance(s, dict) and isinstance(s.get("iteration"), int)]
+    known = [s for s in starts if isinstance(s, dict) and "iteration" in s]
+    return [s for s in known if s["iteration"] is None or isinstance(s["iteration"], int)]
 
 
 def _write_config(run_dir: Path, trainer: Trainer, start: int) -> None:
     """`config.json`: the whole experiment (rerun it with `pe-mjx train --config`), what it
     resolved to, and the code version; `starts` lists every (re)start of the run with the
-    iteration it started from and the code version it ran, so a run resumed on newer code
-    keeps the record of the old."""
+    iteration it started from (null: an earlier start not recorded as such) and the code
+    version it ran, so a run resumed on newer code keeps the record of the old."""
     version = code_version()
-    starts = [s for s in _earlier_starts(run_dir) if s["iteration"] < start]
+    earlier = _earlier_starts(run_dir) if start else []  # a fresh run starts a new history
+    starts = [s for s in earlier if s["iteration"] is None or s["iteration"] < start]
     starts.append({"iteration": start, "code_version": version})
     payload = {
         "experiment": trainer.config.to_dict(),

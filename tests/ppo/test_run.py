@@ -112,3 +112,22 @@ def test_wandb_project_without_the_extra_is_one_error_line(tmp_path, monkeypatch
         "pe-mjx: error: --wandb-project needs Weights & Biases: pip install 'pe-mjx[wandb]'\n"
     )
     assert not (tmp_path / "run" / "checkpoints").exists()
+
+
+def test_the_start_history_of_a_run_survives_old_and_damaged_config_files(tmp_path):
+    from pe_mjx.ppo.run import MAX_CONFIG_BYTES, _earlier_starts
+
+    path = tmp_path / "config.json"
+    assert _earlier_starts(tmp_path) == []  # no file yet
+    version = {"pe_mjx": "0.1.0", "git_commit": "abc"}
+    # Written before `starts` existed: its one code version, iteration unknown.
+    path.write_text(json.dumps({"code_version": version}))
+    assert _earlier_starts(tmp_path) == [{"iteration": None, "code_version": version}]
+    starts = [{"iteration": 0, "code_version": version}, {"iteration": "2"}, 7]
+    path.write_text(json.dumps({"code_version": version, "starts": starts}))
+    assert _earlier_starts(tmp_path) == starts[:1]  # malformed entries dropped
+    for damaged in ("{not json", "[1, 2]", json.dumps({"starts": "x"})):
+        path.write_text(damaged)
+        assert _earlier_starts(tmp_path) == []
+    path.write_text(" " * (MAX_CONFIG_BYTES + 1))  # never read whole
+    assert _earlier_starts(tmp_path) == []
