@@ -7,7 +7,7 @@ parameters, each team reading only the 4 nearest entities of each type) and the 
 against each other in four scenes at the paper's density: 20-5-8 (where it was trained),
 60-15-30 and 120-30-60 (held out) and 240-60-120; and, at 240-60-120, the ablation over k (the
 same parameters with k = 2, 8, 16, full attention being docs/data/transfer-240-60-120-3m; and
-the MEAN co-evolution's pursuers with k = 4).
+the MEAN and BIRNN co-evolutions' pursuers with k = 4).
 Each (scene, part) is one `pe-mjx evaluate` report under OUT/<scene>/<part>/; OUT/summary.json
 and OUT/summary.md gather the headline numbers that docs/results.md quotes. A part whose
 results.json exists is kept (delete it to play it again), so an interrupted run continues where
@@ -37,9 +37,9 @@ LOCAL = "mix-20-5-8-3m-k4"
 """The shipped local-attention policy (tools/ship_policy.py mix-20-5-8-3m ... --nearest-k 4)."""
 FULL = "mix-20-5-8-3m"
 """The same parameters with full attention (the Table III policy)."""
-ABLATION = ((FULL, 2), (FULL, 8), (FULL, 16), ("mean-20-5-8-3m", 4))
-"""(policy, k) pairs of the ablation at the largest scene: k for MIX, and MEAN's pooling made
-local with the same k as the shipped MIX."""
+ABLATION = ((FULL, 2), (FULL, 8), (FULL, 16), ("mean-20-5-8-3m", 4), ("birnn-20-5-8-3m", 4))
+"""(policy, k) pairs of the ablation at the largest scene: k for MIX, and MEAN's pooling and
+BIRNN's recurrence made local with the same k as the shipped MIX."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,7 +88,9 @@ def play(args: Args) -> dict:
                 # row is docs/data/transfer-240-60-120-3m (5 trials), quoted beside these.
                 mix_k = [p for p, n in variants.items() if n.startswith(FULL)]
                 parts["ablation"] = (mix_k, ["scripted"])
-                parts["ablation-mean"] = ([p for p in variants if p not in mix_k], ["scripted"])
+                for path, variant in variants.items():  # one part per other encoder
+                    if path not in mix_k:
+                        parts[f"ablation-{variant.split('-')[0]}"] = ([path], ["scripted"])
             summary["trials"][name] = trials
             for part, (pursuers, evaders) in parts.items():
                 out = args.out / name / part
