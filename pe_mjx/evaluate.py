@@ -131,6 +131,62 @@ class PairingResult:
     trials: dict[str, np.ndarray]
     summary: dict[str, Any]
     seconds: float
+    """Seconds it took to play (for a kept pairing, when it was played)."""
+    kept: bool = False
+    """Kept from an earlier evaluation rather than played (see `Earlier`)."""
+
+
+MAX_RESULTS_BYTES = 512 << 20
+"""The largest results.json that `Earlier.read` opens (100 trials of 100 pairings take ~10 MB)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Earlier:
+    """The pairings of an earlier evaluation that a new one may keep instead of playing them
+    again: those whose two policies have the same fingerprints, in an evaluation of the same
+    scene, trials, seed and backend. The first such pairing is played again all the same, and
+    only if every trial comes out identical are the others kept (a change of code since is
+    caught there, and then every pairing is played)."""
+
+    directory: Path
+    pairings: dict[tuple[str, str], dict[str, Any]]
+    """Each earlier pairing's record in results.json, by (pursuer, evader) fingerprint."""
+    record: int | None
+    """Trials recorded per pairing there (None: unknown, its trajectories are not kept)."""
+
+    @classmethod
+    def read(
+        cls, directory: Path, env_config: EnvConfig, trials: int, seed: int, backend: str
+    ) -> tuple[Earlier | None, str]:
+        """The keepable pairings of `directory`/results.json (None if none) and why."""
+        path = Path(directory) / "results.json"
+        if not path.is_file():
+            return None, f"{path} does not exist"
+        if path.stat().st_size > MAX_RESULTS_BYTES:
+            return None, f"{path} is larger than {MAX_RESULTS_BYTES:,} bytes"
+        try:
+            data = json.loads(path.read_text())
+            meta, pairings = data["meta"], list(data["pairings"])
+            scene = json.loads(json.dumps(env_config.to_dict()))
+            same = (meta["env_config"], meta["trials"], meta["seed"], meta["backend"])
+            if same != (scene, trials, seed, backend):
+                return None, f"{path} is of another scene, trial count, seed or backend"
+            by_policies = {}
+            for pairing in pairings:
+                prints = tuple(pairing[team].get("fingerprint") for team in ("pursuer", "evader"))
+                if None not in prints and set(pairing["trials"]) and pairing["summary"]:
+                    by_policies[prints] = pairing
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
+            return None, f"{path} is not an evaluation's results ({type(e).__name__}: {e})"
+        if not by_policies:
+            return None, f"{path} has no pairing with its policies' fingerprints"
+        record = meta.get("record")
+        return cls(Path(directory), by_policies, record if isinstance(record, int) else None), ""
+
+    def trajectory(self, pairing: dict[str, Any], record: int) -> Path | None:
+        """The earlier recording of `pairing` if it holds the same `record` trials."""
+        path = self.directory / "trajectories" / f"pairing-{pairing['pairing']}.npz"
+        return path if self.record == record and path.is_file() else None
 
 
 def cross_confrontation(
@@ -145,13 +201,15 @@ def cross_confrontation(
     log: Any = print,
     skip_same_method: bool = False,
     progress: bool = False,
+    earlier: Earlier | None = None,
 ) -> list[PairingResult]:
     """Runs every pursuer spec against every evader spec; optionally records `record` trials.
 
     Trajectories are written to `out/trajectories/pairing-<i>.npz` when `record` > 0. With
     `skip_same_method`, pairings of two policies with the same encoder are left out, as in the
     paper's tables (a co-evolution's own opponent is never its test opponent). With
-    `progress`, a progress bar over each pairing's trials on a terminal's stderr.
+    `progress`, a progress bar over each pairing's trials on a terminal's stderr. With
+    `earlier`, its pairings of the same policies are kept instead of played (see `Earlier`).
     """
     env = PursuitEvasionEnv(env_config, backend=backend)
     p_specs = [resolve_policy(s, "pursuer", env_config) for s in pursuers]
@@ -165,8 +223,22 @@ def cross_confrontation(
     ]
     games = _Games(env, log)
     results = []
+    checked: dict[str, np.dtype] | None = None  # an earlier pairing replayed identically
     with _progress(progress) as bar:
         for index, (p_spec, e_spec) in enumerate(pairs):
+            old = None
+            if earlier is not None:
+                old = earlier.pairings.get((p_spec.fingerprint, e_spec.fingerprint))
+            if old is not None and checked is not None:
+                kept = {k: np.asarray(v, dtype=checked[k]) for k, v in old["trials"].items()}
+                result = PairingResult(
+                    index, p_spec, e_spec, kept, summarize(kept), old["seconds"], kept=True
+                )
+                results.append(result)
+                log(f"[{index}] {e_spec.label} vs {p_spec.label}: kept from {earlier.directory}")
+                if record and out is not None:
+                    _keep_or_record(games, earlier, old, keys[:record], result, out, seed)
+                continue
             tic = time.perf_counter()
             title = f"[{index + 1}/{len(pairs)}] {e_spec.label} vs {p_spec.label}"
             final = games.play(p_spec, e_spec, keys, bar, title)
@@ -179,9 +251,41 @@ def cross_confrontation(
                 f"{result.summary['success_rate']:.3f}, pursuit cost "
                 f"{result.summary['pursuit_cost']:.2f} ({seconds:.1f} s)"
             )
+            if old is not None:
+                if _same_trials(old["trials"], per_trial):
+                    checked = {k: v.dtype for k, v in per_trial.items()}
+                    log(
+                        f"[{index}] replays {earlier.directory} exactly: its other pairings of "
+                        "the same policies are kept"
+                    )
+                else:
+                    earlier = None
+                    log(
+                        f"[{index}] differs from {old['pairing']} of the earlier evaluation "
+                        "(the code or a policy changed since): every pairing is played"
+                    )
             if record and out is not None:
                 _record(games, p_spec, e_spec, keys[:record], result, out, seed)
     return results
+
+
+def _same_trials(old: dict[str, list], new: dict[str, np.ndarray]) -> bool:
+    """Whether an earlier pairing's trials (as results.json holds them) equal new ones."""
+    return set(old) == set(new) and all(
+        np.array_equal(np.asarray(old[k], dtype=float), v, equal_nan=True) for k, v in new.items()
+    )
+
+
+def _keep_or_record(
+    games: _Games, earlier: Earlier, old: dict, keys, result: PairingResult, out: Path, seed: int
+) -> None:
+    """The earlier recording of a kept pairing, renumbered; recorded anew if there is none."""
+    path = earlier.trajectory(old, len(keys))
+    if path is None:
+        _record(games, result.pursuer, result.evader, keys, result, out, seed)
+        return
+    (out / "trajectories").mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(path, out / "trajectories" / f"pairing-{result.index}.npz")
 
 
 class _Games:
@@ -376,14 +480,17 @@ def write_reports(
                     "label": r.pursuer.label,
                     "source": r.pursuer.source,
                     "note": r.pursuer.note,
+                    "fingerprint": r.pursuer.fingerprint,
                 },
                 "evader": {
                     "label": r.evader.label,
                     "source": r.evader.source,
                     "note": r.evader.note,
+                    "fingerprint": r.evader.fingerprint,
                 },
                 "summary": r.summary,
                 "seconds": r.seconds,
+                "kept": r.kept,
                 "trials": {k: v.tolist() for k, v in r.trials.items()},
             }
             for r in results
@@ -461,11 +568,15 @@ def evaluate(
     log: Any = print,
     skip_same_method: bool = False,
     progress: bool = False,
+    keep: str | Path | None = None,
 ) -> dict[str, Any]:
     """Runs a matrix and writes every report to `out`; returns the paths and the results.
 
     Everything is written into a temporary directory inside `out` first and moved into place
-    when complete, so a failed or interrupted evaluation leaves no partial results."""
+    when complete, so a failed or interrupted evaluation leaves no partial results (nor does it
+    touch the earlier results in `out`). `keep`: an earlier evaluation's directory (`out`
+    itself, to add policies to a matrix) whose pairings of the same policies are kept rather
+    than played again, after one of them has replayed identically (`Earlier`)."""
     env_config = get_preset(preset) if isinstance(preset, str) else preset
     out = Path(out)
     created = not out.exists()
@@ -484,6 +595,7 @@ def evaluate(
             log,
             skip_same_method,
             progress,
+            keep,
         )
         _move_into(stage, out)
     except BaseException:
@@ -519,8 +631,16 @@ def _evaluate_into(
     log: Any,
     skip_same_method: bool,
     progress: bool = False,
+    keep: str | Path | None = None,
 ) -> dict[str, Any]:
+    from pe_mjx.ppo.run import code_version
+
     tic = time.perf_counter()
+    earlier = None
+    if keep is not None:
+        earlier, why = Earlier.read(Path(keep), env_config, trials, seed, backend)
+        if earlier is None:
+            log(f"keeping nothing: {why}; every pairing is played")
     results = cross_confrontation(
         pursuers,
         evaders,
@@ -533,6 +653,7 @@ def _evaluate_into(
         log,
         skip_same_method,
         progress,
+        earlier,
     )
     meta = {
         "preset": env_config.name,
@@ -543,6 +664,10 @@ def _evaluate_into(
         "pursuers": pursuers,
         "evaders": evaders,
         "seconds": time.perf_counter() - tic,
+        "record": record,
+        "kept": [r.index for r in results if r.kept],
+        "kept_from": str(keep) if any(r.kept for r in results) else None,
+        "code_version": code_version(),
         "jax_version": jax.__version__,
         "devices": [str(d) for d in jax.devices()],
     }
@@ -551,6 +676,7 @@ def _evaluate_into(
 
 
 __all__ = [
+    "Earlier",
     "Policy",
     "cross_confrontation",
     "evaluate",

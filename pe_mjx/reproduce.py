@@ -7,12 +7,14 @@
         --transfer-evaders pursuers            # the shipped 20-5-8 policies (docs/results.md)
 
 Resumable: training resumes every run from its last checkpoint, and a table whose results.json
-exists is not evaluated again (delete it to redo it). Tables II-IV: at each scale, every pursuit
-policy against every evasion policy of another co-evolution at that scale. Tables V and VI: the
-pursuit policies trained at 20-5-8 against the evasion policies trained at 16-4-4 and 24-6-12,
-in those scenes (generalization); with `--transfer-evaders pursuers` they meet the evasion
-policies trained at 20-5-8 instead (both teams transferred; the paper's numbers beside them are
-then for a different opponent, and the report says so). The paper's numbers stand beside ours.
+exists is not evaluated again (delete it to redo it; with `--extend`, only the pairings of runs
+found since are played, the others kept once one of them replays identically). Tables II-IV:
+at each scale, every pursuit policy against every evasion policy of another co-evolution at that
+scale. Tables V and VI: the pursuit policies trained at 20-5-8 against the evasion policies
+trained at 16-4-4 and 24-6-12, in those scenes (generalization); with `--transfer-evaders
+pursuers` they meet the evasion policies trained at 20-5-8 instead (both teams transferred; the
+paper's numbers beside them are then for a different opponent, and the report says so).
+The paper's numbers stand beside ours.
 """
 
 from __future__ import annotations
@@ -65,6 +67,11 @@ class ReproduceArgs:
     transfer_evaders: Literal["paper", "pursuers"] = "paper"
     """Tables V and VI: evaders trained at the scene's scale (the paper) or at the pursuers'
     scale, 20-5-8 (when the 16-4-4 and 24-6-12 co-evolutions have not been trained)."""
+    extend: bool = False
+    """A table whose results.json exists but lacks runs found since (a method added) is played
+    again keeping its pairings of unchanged policies (same fingerprints): one of them is
+    replayed and must come out identical trial for trial, then only the new pairings are
+    played (if it differs, the whole table is). Without it such a table is kept as it is."""
 
 
 def table_scales(table: str, transfer_evaders: str = "paper") -> tuple[str, str, str]:
@@ -118,16 +125,21 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
         scene, p_scale, e_scale = table_scales(table, args.transfer_evaders)
         out = args.out / f"table-{table}"
         pursuers, evaders = found_runs(args, p_scale), found_runs(args, e_scale)
+        keep = None
         if (out / "results.json").exists():
             done[table] = json.loads((out / "results.json").read_text())
             played = {p[team]["source"] for p in done[table]["pairings"] for team in TEAMS}
             unplayed = sorted(set(pursuers + evaders) - played)
-            if unplayed:  # kept as it is, but not silently stale
-                print(
-                    f"table {table}: kept {out / 'results.json'}, which does not play "
-                    f"{', '.join(unplayed)}; delete {out} to play them"
-                )
-            continue
+            if unplayed and args.extend:
+                print(f"table {table}: extending {out / 'results.json'} with {', '.join(unplayed)}")
+                keep = out
+            else:
+                if unplayed:  # kept as it is, but not silently stale
+                    print(
+                        f"table {table}: kept {out / 'results.json'}, which does not play "
+                        f"{', '.join(unplayed)}; add --extend to play them (or delete {out})"
+                    )
+                continue
 
         if not pursuers or not evaders:
             print(f"table {table}: no runs for it yet, skipped")
@@ -148,6 +160,7 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
             args.backend,
             record=2,
             skip_same_method=not full,
+            keep=keep,
         )
         done[table] = json.loads((out / "results.json").read_text())
     return done

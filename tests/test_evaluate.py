@@ -123,6 +123,47 @@ def test_small_matrix_is_deterministic_and_writes_every_report(tmp_path):
     np.testing.assert_allclose(success, first["results"][0].trials["success_rate"][:2])
 
 
+def test_adding_a_policy_keeps_the_pairings_already_played(tmp_path):
+    # An evaluation extended with a policy plays only its pairings, after replaying one kept
+    # pairing identically; the result equals playing the whole matrix anew.
+    kwargs = dict(preset="4-1-2", trials=6, seed=3, backend="kinematic", record=2)
+    out = tmp_path / "table"
+    ev.evaluate(["scripted", "random"], ["scripted"], out=out, log=lambda *_: None, **kwargs)
+    first_recording = (out / "trajectories" / "pairing-1.npz").read_bytes()
+    said = []
+    both = ["scripted", "random"]
+    extended = ev.evaluate(both, both, out=out, log=said.append, keep=out, **kwargs)
+    fresh = ev.evaluate(both, both, out=tmp_path / "fresh", log=lambda *_: None, **kwargs)
+    # (scripted, scripted) was replayed as the check, (random, scripted) kept, the rest played.
+    assert [r.kept for r in extended["results"]] == [False, True, False, False]
+    assert any("replays" in line and "kept" in line for line in said)
+    for r1, r2 in zip(extended["results"], fresh["results"], strict=True):
+        assert r1.summary == r2.summary
+        for key in r2.trials:
+            np.testing.assert_array_equal(r1.trials[key], r2.trials[key])
+    data = json.loads((out / "results.json").read_text())
+    assert data["meta"]["kept"] == [1] and data["meta"]["record"] == 2
+    assert [p["kept"] for p in data["pairings"]] == [False, True, False, False]
+    assert (out / "trials.csv").read_text() == (tmp_path / "fresh" / "trials.csv").read_text()
+    # The kept pairing's recording is the earlier one (same index here).
+    assert (out / "trajectories" / "pairing-1.npz").read_bytes() == first_recording
+    assert len(list((out / "trajectories").glob("*.npz"))) == 4
+
+    # An earlier evaluation that no longer replays identically keeps nothing.
+    data["pairings"][0]["trials"]["length"][0] += 1
+    (out / "results.json").write_text(json.dumps(data))
+    said.clear()
+    again = ev.evaluate(both, both, out=out, log=said.append, keep=out, **kwargs)
+    assert not any(r.kept for r in again["results"])
+    assert any("every pairing is played" in line for line in said)
+    # Nor does one of another scene, seed or trial count.
+    said.clear()
+    other = {**kwargs, "seed": 4}
+    again = ev.evaluate(both, ["scripted"], out=out, log=said.append, keep=out, **other)
+    assert not any(r.kept for r in again["results"])
+    assert any("another scene, trial count, seed or backend" in line for line in said)
+
+
 def _cli(*args, timeout=900):
     return subprocess.run(
         [sys.executable, "-m", "pe_mjx.cli", "evaluate", *args],

@@ -137,7 +137,8 @@ def test_a_kept_table_names_the_runs_it_does_not_play(tmp_path, capsys):
     )
     assert _evaluate(args) == {"III": kept}
     said = capsys.readouterr().out
-    assert f"does not play {tmp_path / 'runs' / 'mean-20-5-8'}; delete {table}" in said
+    assert f"does not play {tmp_path / 'runs' / 'mean-20-5-8'}; add --extend" in said
+    assert f"(or delete {table})" in said
     assert mix + "," not in said
     # Once every run it finds is in the table, nothing is said.
     mean = str(tmp_path / "runs" / "mean-20-5-8")
@@ -145,3 +146,52 @@ def test_a_kept_table_names_the_runs_it_does_not_play(tmp_path, capsys):
     (table / "results.json").write_text(json.dumps(kept))
     _evaluate(args)
     assert "does not play" not in capsys.readouterr().out
+
+
+def test_extend_plays_a_kept_table_again_keeping_what_it_can(tmp_path, monkeypatch, capsys):
+    # With --extend a table that lacks runs found since is handed back to the evaluation with
+    # itself as the earlier evaluation to keep pairings from (tests/test_evaluate.py checks
+    # what is kept); the table is otherwise played as a new one would be.
+    import json
+
+    from pe_mjx import evaluate as ev
+    from pe_mjx.reproduce import ReproduceArgs, _evaluate
+
+    policies = ROOT / "pe_mjx" / "assets" / "policies"
+    for name in ("mix-20-5-8", "mean-20-5-8"):
+        shutil.copytree(policies / name, tmp_path / "runs" / name)
+    mix, mean = (str(tmp_path / "runs" / n) for n in ("mix-20-5-8", "mean-20-5-8"))
+    table = tmp_path / "out" / "table-III"
+    table.mkdir(parents=True)
+    kept = {"pairings": [{"pursuer": {"source": mix}, "evader": {"source": "scripted"}}]}
+    (table / "results.json").write_text(json.dumps(kept))
+    calls = []
+
+    def evaluate(pursuers, evaders, scene, out, *args, **kwargs):
+        calls.append((pursuers, evaders, scene, out, kwargs))
+        extended = {
+            "pairings": [
+                {"pursuer": {"source": p}, "evader": {"source": e}}
+                for p in pursuers
+                for e in evaders
+            ]
+        }
+        (out / "results.json").write_text(json.dumps(extended))
+
+    monkeypatch.setattr(ev, "evaluate", evaluate)
+    args = ReproduceArgs(
+        runs=tmp_path / "runs",
+        out=tmp_path / "out",
+        encoders=("mix", "mean"),
+        tables=("III",),
+        extend=True,
+    )
+    done = _evaluate(args)
+    assert f"table III: extending {table / 'results.json'} with {mean}" in capsys.readouterr().out
+    [(pursuers, evaders, scene, out, kwargs)] = calls
+    assert (pursuers, evaders, scene, out) == ([mix, mean], [mix, mean], "20-5-8", table)
+    assert kwargs["keep"] == table and kwargs["skip_same_method"]
+    assert len(done["III"]["pairings"]) == 4
+    # Complete now: kept as it is, nothing played.
+    _evaluate(args)
+    assert len(calls) == 1

@@ -14,11 +14,15 @@ call with the parameters as an *input*, so that a jitted caller compiles once pe
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
+import json
 from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from pe_mjx.experiment import NetworkConfig
 
@@ -69,6 +73,23 @@ class Policy:
     @property
     def learned(self) -> bool:
         return self.variables is not None
+
+    @functools.cached_property
+    def fingerprint(self) -> str:
+        """A digest of what decides how the policy acts: its team, program (`shape_key`), label,
+        note, greedy or sampled actions, and every array of its learned state with its path,
+        shape and dtype. Equal fingerprints play equal games under the same code; where it came
+        from (`source`) does not enter it."""
+        digest = hashlib.sha256()
+        fields = [self.team, self.shape_key, self.label, self.note, self.deterministic]
+        digest.update(json.dumps(fields).encode())
+        leaves, _ = jax.tree_util.tree_flatten_with_path(self.variables)
+        for path, leaf in leaves:
+            array = np.asarray(leaf)
+            head = [jax.tree_util.keystr(path), list(array.shape), array.dtype.str]
+            digest.update(json.dumps(head).encode())
+            digest.update(np.ascontiguousarray(array).tobytes())
+        return digest.hexdigest()[:32]
 
     def with_attention(self) -> AttentionApplyFn:
         """`(variables, obs, rng) -> (int32 actions, attention or None)` for every policy."""

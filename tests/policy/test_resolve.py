@@ -53,3 +53,34 @@ def test_errors_name_the_problem(tmp_path):
     )
     with pytest.raises(CheckpointError, match="actions"):
         resolve_policy(SHIPPED, "pursuer", other)
+
+
+def test_fingerprint_is_what_decides_play_not_where_it_came_from(tmp_path):
+    import shutil
+
+    from pe_mjx.policy.shipped import policies_dir
+
+    config = get_preset("20-5-8")
+    base = resolve_policy("mix-20-5-8-3m", "pursuer", config)
+    # The same checkpoint under another path: same fingerprint (the source does not enter it).
+    shutil.copytree(policies_dir() / "mix-20-5-8-3m", tmp_path / "copy")
+    copy = resolve_policy(str(tmp_path / "copy"), "pursuer", config)
+    assert copy.source != base.source and copy.fingerprint == base.fingerprint
+    assert len(base.fingerprint) == 32
+    # Same parameters, another way of reading them (4 nearest per type): another policy.
+    local = resolve_policy("mix-20-5-8-3m-k4", "pursuer", config)
+    np.testing.assert_array_equal(
+        jax.tree.leaves(local.variables)[0], jax.tree.leaves(base.variables)[0]
+    )
+    assert local.fingerprint != base.fingerprint
+    # Another checkpoint, the other team, greedy actions, builtin policies: all differ.
+    others = [
+        resolve_policy("mix-20-5-8", "pursuer", config),
+        resolve_policy("mix-20-5-8-3m", "evader", config),
+        resolve_policy("mix-20-5-8-3m", "pursuer", config, deterministic=True),
+        resolve_policy("scripted", "pursuer", config),
+        resolve_policy("random", "pursuer", config),
+    ]
+    prints = {p.fingerprint for p in [base, local, *others]}
+    assert len(prints) == 7
+    assert resolve_policy("scripted", "pursuer", config).fingerprint == others[3].fingerprint
