@@ -192,6 +192,45 @@ def everywhere(abstract: Any) -> Any:
     )
 
 
+def _key_name(key: Any) -> str:
+    """A path entry's name, alike for dicts, attributes and sequences (orbax stores dicts)."""
+    for field in ("key", "name", "idx"):
+        if hasattr(key, field):
+            return str(getattr(key, field))
+    return str(key)
+
+
+def _shapes(tree: Any) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """Each leaf of `tree` (arrays, shape structs or orbax's array metadata) by its dotted path."""
+    return {
+        ".".join(_key_name(k) for k in path): (tuple(x.shape), np.dtype(x.dtype))
+        for path, x in jax.tree_util.tree_leaves_with_path(tree)
+    }
+
+
+def check_stored_shapes(item_dir: Path, abstract: Any, where: str) -> None:
+    """Checks the arrays an orbax item declares (its metadata only: no array is read) against
+    the shapes and dtypes its config implies, so that a checkpoint whose config and arrays
+    disagree is one clear error, before orbax allocates for it or starts reading."""
+    try:
+        with quiet_logs():
+            stored = _shapes(ocp.StandardCheckpointHandler().metadata(item_dir.absolute()))
+    except Exception as err:  # orbax raises many types for a damaged item
+        raise CheckpointError(f"{where} cannot be restored: {short_error(err)}") from None
+    wanted = _shapes(abstract)
+    for name in sorted(wanted.keys() | stored.keys()):
+        if name not in stored:
+            raise CheckpointError(f"{where} lacks the array {name} that its network config needs")
+        if name not in wanted:
+            raise CheckpointError(f"{where} holds an array {name} that its network config lacks")
+        (have, have_dtype), (want, want_dtype) = stored[name], wanted[name]
+        if have != want or have_dtype != want_dtype:
+            raise CheckpointError(
+                f"{where} does not match its network config: {name} is stored as "
+                f"{have_dtype}{list(have)} but the config needs {want_dtype}{list(want)}"
+            )
+
+
 class RestoredPolicy(NamedTuple):
     """One team's learned policy as a run stored it, with the configs parsed once."""
 
@@ -237,6 +276,10 @@ def restore_policy_params(
             "normalizer": jax.eval_shape(init_normalizer, obs),
         }
     )
+    where = f"the {team} policy in {run_dir} (step {meta['step']})"
+    check_stored_shapes(
+        run_dir / CHECKPOINT_DIR / str(meta["step"]) / f"policy_{team}", abstract, where
+    )
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
             restored = mngr.restore(
@@ -244,14 +287,11 @@ def restore_policy_params(
                 args=ocp.args.Composite(**{f"policy_{team}": ocp.args.StandardRestore(abstract)}),
             )[f"policy_{team}"]
     except Exception as err:
-        raise CheckpointError(
-            f"the {team} policy in {run_dir} (step {meta['step']}) cannot be restored: "
-            f"{short_error(err)}"
-        ) from None
+        raise CheckpointError(f"{where} cannot be restored: {short_error(err)}") from None
     if not all_finite(restored):
         raise CheckpointError(
-            f"the {team} policy in {run_dir} (step {meta['step']}) holds non-finite parameters "
-            f"(NaN or inf): the run diverged; play an earlier checkpoint or retrain"
+            f"{where} holds non-finite parameters (NaN or inf): the run diverged; play an "
+            f"earlier checkpoint or retrain"
         )
     return RestoredPolicy(network, restored, net_config, scene, trained, meta)
 

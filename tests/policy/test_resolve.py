@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import jax
 import numpy as np
@@ -53,6 +54,35 @@ def test_errors_name_the_problem(tmp_path):
     )
     with pytest.raises(CheckpointError, match="actions"):
         resolve_policy(SHIPPED, "pursuer", other)
+
+
+def test_a_config_that_disagrees_with_the_arrays_is_refused_before_they_are_read(tmp_path):
+    """A run whose network config says width 64 over arrays of width 32 is one clear error that
+    names the array and both shapes, found from orbax's metadata before any array is read (orbax
+    read the arrays and failed half-way, leaving coroutines unawaited)."""
+    import json
+    import shutil
+    import warnings
+
+    from pe_mjx.policy.shipped import policies_dir
+
+    run = tmp_path / "run"
+    shutil.copytree(policies_dir() / SHIPPED, run)
+    path = next((run / "checkpoints").iterdir()) / "meta" / "metadata"
+    meta = json.loads(path.read_text())
+    width = meta["network_configs"]["pursuer"]["width"]
+    meta["network_configs"]["pursuer"]["width"] = 2 * width
+    path.write_text(json.dumps(meta))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an unawaited read would warn
+        with pytest.raises(CheckpointError) as err:
+            resolve_policy(str(run), "pursuer", get_preset("20-5-8"))
+    message = str(err.value)
+    assert "does not match its network config" in message, message
+    shapes = rf"stored as float32\[{width}\b.*needs float32\[{2 * width}\b"
+    assert re.search(shapes, message), message
+    # The other team's arrays still fit its own config.
+    assert resolve_policy(str(run), "evader", get_preset("20-5-8")).team == "evader"
 
 
 def test_fingerprint_is_what_decides_play_not_where_it_came_from(tmp_path):
