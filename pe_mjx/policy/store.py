@@ -208,7 +208,7 @@ def _shapes(tree: Any) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
     }
 
 
-def check_stored_shapes(item_dir: Path, abstract: Any, where: str) -> None:
+def _check_stored_shapes(item_dir: Path, abstract: Any, where: str) -> None:
     """Checks the arrays an orbax item declares (its metadata only: no array is read) against
     the shapes and dtypes its config implies, so that a checkpoint whose config and arrays
     disagree is one clear error, before orbax allocates for it or starts reading."""
@@ -277,7 +277,7 @@ def restore_policy_params(
         }
     )
     where = f"the {team} policy in {run_dir} (step {meta['step']})"
-    check_stored_shapes(
+    _check_stored_shapes(
         run_dir / CHECKPOINT_DIR / str(meta["step"]) / f"policy_{team}", abstract, where
     )
     try:

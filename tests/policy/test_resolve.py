@@ -57,7 +57,7 @@ def test_errors_name_the_problem(tmp_path):
 
 
 def test_a_config_that_disagrees_with_the_arrays_is_refused_before_they_are_read(tmp_path):
-    """A run whose network config says width 64 over arrays of width 32 is one clear error that
+    """A run whose network config says twice the width its arrays have is one clear error that
     names the array and both shapes, found from orbax's metadata before any array is read (orbax
     read the arrays and failed half-way, leaving coroutines unawaited)."""
     import json
