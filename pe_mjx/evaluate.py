@@ -45,6 +45,8 @@ from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
 
 TRIAL_FIELDS = ("success_rate", "travel_distance", "pursuit_cost", "evaders_incapacitated")
+DISTANCE_KEYS = ("travel_distance",)
+"""The per-trial fields that are float32 sums of distances (the others are counts and rates)."""
 TRIAL_FIELDS += ("length",)
 
 MLP_PADDED_NOTE = (
@@ -145,8 +147,9 @@ class Earlier:
     """The pairings of an earlier evaluation that a new one may keep instead of playing them
     again: those whose two policies have the same fingerprints, in an evaluation of the same
     scene, trials, seed and backend. The first such pairing is played again all the same, and
-    only if every trial comes out identical are the others kept (a change of code since is
-    caught there, and then every pairing is played)."""
+    only if every trial comes out the same game (every count and length equal, the distances up
+    to float32 rounding: `_same_trials`) are the others kept (a change of code since is caught
+    there, and then every pairing is played)."""
 
     directory: Path
     pairings: dict[tuple[str, str], dict[str, Any]]
@@ -269,11 +272,29 @@ def cross_confrontation(
     return results
 
 
+SAME_DISTANCE_RTOL = 1e-6
+"""How far a replayed trial's distances may be from the earlier ones (relative) and still be the
+same game: a few float32 roundings (the distances are float32 sums over an episode's steps; a
+change in how they are summed moves them by about 1e-8 relative, a change in any move of
+the game by far more)."""
+
+
 def _same_trials(old: dict[str, list], new: dict[str, np.ndarray]) -> bool:
-    """Whether an earlier pairing's trials (as results.json holds them) equal new ones."""
-    return set(old) == set(new) and all(
-        np.array_equal(np.asarray(old[k], dtype=float), v, equal_nan=True) for k, v in new.items()
-    )
+    """Whether an earlier pairing's trials (as results.json holds them) are the new ones: every
+    count, length and rate equal, every distance equal up to float32 rounding."""
+    if set(old) != set(new):
+        return False
+    for key, value in new.items():
+        earlier = np.asarray(old[key], dtype=float)
+        if earlier.shape != value.shape:
+            return False
+        if key in DISTANCE_KEYS:
+            same = np.allclose(earlier, value, rtol=SAME_DISTANCE_RTOL, atol=0, equal_nan=True)
+        else:
+            same = np.array_equal(earlier, value, equal_nan=True)
+        if not same:
+            return False
+    return True
 
 
 def _keep_or_record(

@@ -8,7 +8,7 @@
 
 Resumable: training resumes every run from its last checkpoint, and a table whose results.json
 exists is not evaluated again (delete it to redo it; with `--extend`, only the pairings of runs
-found since are played, the others kept once one of them replays identically). Tables II-IV:
+found since are played, the others kept once one of them replays the same game). Tables II-IV:
 at each scale, every pursuit policy against every evasion policy of another co-evolution at that
 scale. Tables V and VI: the pursuit policies trained at 20-5-8 against the evasion policies
 trained at 16-4-4 and 24-6-12, in those scenes (generalization); with `--transfer-evaders
@@ -70,7 +70,8 @@ class ReproduceArgs:
     extend: bool = False
     """A table whose results.json exists but lacks runs found since (a method added) is played
     again keeping its pairings of unchanged policies (same fingerprints): one of them is
-    replayed and must come out identical trial for trial, then only the new pairings are
+    replayed and must come out the same trial for trial (distances up to float32 rounding),
+    then only the new pairings are
     played (if it differs, the whole table is). Without it such a table is kept as it is."""
 
 
