@@ -258,8 +258,8 @@ def cross_confrontation(
                 if _same_trials(old["trials"], per_trial):
                     checked = {k: v.dtype for k, v in per_trial.items()}
                     log(
-                        f"[{index}] replays {earlier.directory} exactly: its other pairings of "
-                        "the same policies are kept"
+                        f"[{index}] replays {earlier.directory} (the same game): its other "
+                        "pairings of the same policies are kept"
                     )
                 else:
                     earlier = None

@@ -175,10 +175,23 @@ class TeamTraining:
     """The team's rewards are multiplied by this before GAE (positive)."""
     learning_rate: float | None = None
     """The team's Adam step size (None: ppo.learning_rate)."""
+    init: str | None = None
+    """Start the learned team from this policy (a run directory or a shipped policy's name)
+    instead of random parameters: its parameters and observation statistics, with a fresh
+    optimiser and step-size schedule (fine-tuning, e.g. at another scale). Its network must have
+    the parameter shapes of `network` in this scene (MIX, MEAN and BIRNN read any entity
+    counts; an MLP only those it was trained with). A resumed run continues from its own
+    checkpoint and ignores this."""
 
     def __post_init__(self) -> None:
         check_finite(self)
         _check(bool(self.policy), "policy", "must be learn, scripted, random or a run")
+        _check(
+            self.init is None or (bool(self.init) and self.learns),
+            "init",
+            f"must name a run or shipped policy for a learned team (policy learn); got "
+            f"init={self.init!r} with policy={self.policy!r}",
+        )
         _check(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
         _check(
             self.learning_rate is None or self.learning_rate > 0,

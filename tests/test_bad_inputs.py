@@ -278,6 +278,12 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
     add("train-opponent-missing", "train", *TINY_TRAIN, *out, "--evader.policy", "no-such-run")
     add("train-opponent-damaged", "train", *TINY_TRAIN, *out, "--evader.policy",
         str(runs / "num_actions_off_by_one"))  # fmt: skip
+    add("train-init-scripted", "train", *TINY_TRAIN, *out, "--evader.init", "scripted")
+    add("train-init-missing", "train", *TINY_TRAIN, *out, "--evader.init", "no-such-run")
+    add("train-init-fixed-team", "train", *TINY_TRAIN, *out, "--evader.policy", "random",
+        "--evader.init", str(runs / "good"))  # fmt: skip
+    add("train-init-misfit", "train", *TINY_TRAIN, *out, "--pursuer.network.width", "8",
+        "--pursuer.init", str(runs / "good"))  # fmt: skip
     add("train-unknown-flag", "train", *TINY_TRAIN, *out, "--learning-rate", "1e-3")
     add("train-missing-value", "train", *TINY_TRAIN, *out, "--ppo.gamma")
     add("train-view-value", "train", *TINY_TRAIN, *out, "--view=maybe")

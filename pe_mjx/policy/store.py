@@ -208,27 +208,33 @@ def _shapes(tree: Any) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
     }
 
 
+def shape_mismatch(have: Any, want: Any) -> str | None:
+    """The first difference between two trees of arrays (or shape structs, or orbax's array
+    metadata) in their leaves' paths, shapes and dtypes, in words; None when they agree."""
+    found, wanted = _shapes(have), _shapes(want)
+    for name in sorted(wanted.keys() | found.keys()):
+        if name not in found:
+            return f"lacks the array {name}"
+        if name not in wanted:
+            return f"holds an array {name} that is not expected"
+        (shape, dtype), (want_shape, want_dtype) = found[name], wanted[name]
+        if shape != want_shape or dtype != want_dtype:
+            return f"{name} is {dtype}{list(shape)} where {want_dtype}{list(want_shape)} is needed"
+    return None
+
+
 def _check_stored_shapes(item_dir: Path, abstract: Any, where: str) -> None:
     """Checks the arrays an orbax item declares (its metadata only: no array is read) against
     the shapes and dtypes its config implies, so that a checkpoint whose config and arrays
     disagree is one clear error, before orbax allocates for it or starts reading."""
     try:
         with quiet_logs():
-            stored = _shapes(ocp.StandardCheckpointHandler().metadata(item_dir.absolute()))
+            stored = ocp.StandardCheckpointHandler().metadata(item_dir.absolute())
     except Exception as err:  # orbax raises many types for a damaged item
         raise CheckpointError(f"{where} cannot be restored: {short_error(err)}") from None
-    wanted = _shapes(abstract)
-    for name in sorted(wanted.keys() | stored.keys()):
-        if name not in stored:
-            raise CheckpointError(f"{where} lacks the array {name} that its network config needs")
-        if name not in wanted:
-            raise CheckpointError(f"{where} holds an array {name} that its network config lacks")
-        (have, have_dtype), (want, want_dtype) = stored[name], wanted[name]
-        if have != want or have_dtype != want_dtype:
-            raise CheckpointError(
-                f"{where} does not match its network config: {name} is stored as "
-                f"{have_dtype}{list(have)} but the config needs {want_dtype}{list(want)}"
-            )
+    problem = shape_mismatch(stored, abstract)
+    if problem is not None:
+        raise CheckpointError(f"{where} does not match its network config: it {problem}")
 
 
 class RestoredPolicy(NamedTuple):

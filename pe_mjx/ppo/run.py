@@ -154,6 +154,49 @@ def resolve_opponents(config: ExperimentConfig) -> dict[str, Policy]:
     }
 
 
+def initial_variables(trainer: Trainer) -> dict[str, Any]:
+    """The stored variables ({"params", "normalizer"}) of each learned team whose config names
+    an `init` policy, checked against the shapes this run's network needs (from the abstract
+    train state: nothing is compiled)."""
+    found: dict[str, Any] = {}
+    abstract = None
+    for team in trainer.learned:
+        source = trainer.config.team(team).init
+        if source is None:
+            continue
+        abstract = abstract or trainer.abstract_state().teams
+        try:
+            restored = store.restore_policy_params(source, team, trainer.env_config)
+        except store.CheckpointError as err:
+            raise store.CheckpointError(f"--{team}.init: {err}") from None
+        want = {"params": abstract[team].params, "normalizer": abstract[team].normalizer}
+        problem = store.shape_mismatch(restored.variables, want)
+        if problem is not None:
+            net = trainer.network_configs[team]
+            raise store.CheckpointError(
+                f"--{team}.init: the {team} policy of {source} ({restored.net_config.encoder}, "
+                f"trained at {restored.trained.name}) does not fit this run's {team} network "
+                f"({net.encoder} at {trainer.env_config.name}): it {problem}"
+            )
+        found[team] = restored.variables
+    return found
+
+
+def warm_start(trainer: Trainer, state: TrainState, variables: dict[str, Any]) -> TrainState:
+    """`state` with each team of `variables` starting from those parameters and observation
+    statistics, and a fresh optimiser state (the step-size schedule starts over too)."""
+    teams = dict(state.teams)
+    for team, stored in variables.items():
+        stored = jax.device_put(stored, trainer.replicated)
+        opt_state = jax.jit(trainer.optimizers[team].init, out_shardings=trainer.replicated)(
+            stored["params"]
+        )
+        teams[team] = teams[team].replace(
+            params=stored["params"], opt_state=opt_state, normalizer=stored["normalizer"]
+        )
+    return state.replace(teams=teams)
+
+
 @dataclasses.dataclass(frozen=True)
 class Snapshot:
     """What a watcher of a training run (the live viewer) gets after every iteration: host
@@ -224,10 +267,13 @@ def train(
             f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or "
             f"choose another --out"
         )
+    trainer = Trainer(config, opponents=resolve_opponents(config))
     if resume:
         if not run_dir.is_dir():
             raise store.CheckpointError(f"no run at {run_dir}: the directory does not exist")
+        starts = {}
     else:
+        starts = initial_variables(trainer)  # read and checked before anything is written
         try:
             run_dir.mkdir(parents=True, exist_ok=True)
         except OSError as err:
@@ -236,7 +282,9 @@ def train(
             ) from None
     lock = checkpoint.lock_run(run_dir) if is_primary() else contextlib.nullcontext()
     with lock, lost_process_guard():
-        return _train(config, run_dir, resume, progress, stop_after, on_iteration, wandb_project)
+        return _train(
+            trainer, starts, run_dir, resume, progress, stop_after, on_iteration, wandb_project
+        )
 
 
 class TrainingError(RuntimeError):
@@ -250,7 +298,8 @@ def _params_finite(teams: dict[str, Any]) -> jax.Array:
 
 
 def _train(
-    config: ExperimentConfig,
+    trainer: Trainer,
+    starts: dict[str, Any],
     run_dir: Path,
     resume: bool,
     progress: bool,
@@ -260,10 +309,13 @@ def _train(
 ) -> tuple[Trainer, TrainState]:
     from tensorboardX import SummaryWriter
 
-    trainer = Trainer(config, opponents=resolve_opponents(config))
+    config = trainer.config
     # A fresh run may reuse a directory whose checkpoints/ holds no finished step (a run killed
     # during its first save): orbax ignores and replaces the unfinished temporary steps.
-    state = checkpoint.restore_train_state(run_dir, trainer) if resume else trainer.init()
+    if resume:
+        state = checkpoint.restore_train_state(run_dir, trainer)
+    else:
+        state = warm_start(trainer, trainer.init(), starts)
     last_saved = int(state.iteration) if resume else None
     primary = is_primary()  # in a group, process 0 alone writes files and shows progress
     progress = progress and primary

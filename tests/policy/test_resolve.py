@@ -79,7 +79,7 @@ def test_a_config_that_disagrees_with_the_arrays_is_refused_before_they_are_read
             resolve_policy(str(run), "pursuer", get_preset("20-5-8"))
     message = str(err.value)
     assert "does not match its network config" in message, message
-    shapes = rf"stored as float32\[{width}\b.*needs float32\[{2 * width}\b"
+    shapes = rf"is float32\[{width}\b.*where float32\[{2 * width}\b.* is needed"
     assert re.search(shapes, message), message
     # The other team's arrays still fit its own config.
     assert resolve_policy(str(run), "evader", get_preset("20-5-8")).team == "evader"

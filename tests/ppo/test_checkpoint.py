@@ -420,3 +420,51 @@ def test_an_interrupt_during_a_save_waits_for_the_save_then_stops_the_run():
             pass
     finally:
         signal.signal(signal.SIGINT, outer)
+
+
+def test_a_learned_team_can_start_from_a_trained_policy_in_another_scene(runs):
+    """--evader.init <run>: the evader starts from the run's evader parameters and observation
+    statistics, with a fresh optimiser, in a scene with other counts (a MIX network reads any);
+    the pursuer, with no init, starts from fresh random parameters."""
+    from pe_mjx.ppo.run import initial_variables, warm_start
+    from pe_mjx.ppo.train import Trainer
+
+    root, straight, _ = runs
+    source = store.restore_policy_params(root / "straight", "evader").variables
+    config = tiny("4-2-2", **{"evader.init": str(root / "straight")})
+    trainer = Trainer(config)
+    fresh = trainer.init()
+    state = warm_start(trainer, fresh, initial_variables(trainer))
+    assert _max_diff(state.teams["evader"].params, source["params"]) == 0.0
+    assert _max_diff(state.teams["evader"].normalizer, source["normalizer"]) == 0.0
+    assert _max_diff(state.teams["evader"].params, fresh.teams["evader"].params) > 0.0
+    adam = state.teams["evader"].opt_state[1][0]  # (clip, adam) -> adam's (state, ...)
+    assert int(adam.count) == 0 and _max_diff(adam.mu, jax.tree.map(jnp.zeros_like, adam.mu)) == 0
+    assert _max_diff(state.teams["pursuer"].params, fresh.teams["pursuer"].params) == 0.0
+    assert _max_diff(state.teams["pursuer"].params, straight.teams["pursuer"].params) > 0.0
+
+
+def test_a_run_started_from_a_policy_trains_on_from_it_and_records_where_from(runs, tmp_path):
+    """Through `train`: one iteration later the evader is still near its starting policy (one
+    update away, far nearer than a fresh start is), and config.json records the init."""
+    from pe_mjx.ppo.train import Trainer
+
+    root, _, _ = runs
+    config = CONFIG.override({"evader.init": str(root / "straight"), "seed": 3})
+    _, state = train(config, tmp_path / "tuned", progress=False, stop_after=1)
+    assert int(state.iteration) == 1
+    saved = json.loads((tmp_path / "tuned" / "config.json").read_text())
+    assert saved["experiment"]["evader"]["init"] == str(root / "straight")
+    source = store.restore_policy_params(root / "straight", "evader").variables["params"]
+    moved = _max_diff(state.teams["evader"].params, source)
+    unstarted = Trainer(config.override({"evader.init": None})).init()
+    fresh = _max_diff(unstarted.teams["evader"].params, source)
+    assert 0.0 < moved < 0.1 * fresh, (moved, fresh)
+
+
+def test_a_policy_that_does_not_fit_the_network_is_refused_before_the_run_starts(runs, tmp_path):
+    root, _, _ = runs
+    config = CONFIG.override({"evader.init": str(root / "straight"), "evader.network.width": 8})
+    with pytest.raises(CheckpointError, match=r"^--evader\.init: .*does not fit .* it .*float32"):
+        train(config, tmp_path / "misfit", progress=False)
+    assert not (tmp_path / "misfit").exists()
