@@ -310,20 +310,30 @@ def _training_summary(out: Path, state, config: ExperimentConfig) -> None:
                 f"pursuer success {value:.3f}"
             )
     learned = set(state.teams)
-    pursuers = str(out) if "pursuer" in learned else "scripted"
-    evaders = str(out) if "evader" in learned else "scripted"
+    pursuers = str(out) if "pursuer" in learned else config.pursuer.policy
+    evaders = str(out) if "evader" in learned else config.evader.policy
+    # A run in a scene of its own (counts or arena of no preset) names it by its config.json.
+    preset = config.preset in PRESETS and _same_scene(config.env, PRESETS[config.preset])
+    scene = f"--preset {config.preset}" if preset else f"--config {out}/config.json"
     print("next:")
     print(
         f"  pe-mjx evaluate --pursuers {' '.join(dict.fromkeys([pursuers, 'scripted']))} "
-        f"--evaders {' '.join(dict.fromkeys([evaders, 'scripted']))} --preset {config.preset} "
+        f"--evaders {' '.join(dict.fromkeys([evaders, 'scripted']))} {scene} "
         f"--backend {config.backend} --out {out}/eval"
     )
-    print(
-        f"  pe-mjx view --preset {config.preset} --backend {config.backend} "
-        f"--pursuers {pursuers} --evaders {evaders}"
-    )
+    if preset:  # the viewer starts from presets only (its GUI changes the counts)
+        print(
+            f"  pe-mjx view --preset {config.preset} --backend {config.backend} "
+            f"--pursuers {pursuers} --evaders {evaders}"
+        )
     print(f"  pe-mjx plot {out}")
     print(f"  tensorboard --logdir {out}/tb   (pip install 'pe-mjx[tensorboard]')")
+
+
+def _same_scene(a: EnvConfig, b: EnvConfig) -> bool:
+    """Whether two games have the same arena, teams and timing (their rewards may differ: the
+    training defaults add the evaders' flee shaping to a preset's)."""
+    return a.replace(reward=b.reward) == b
 
 
 @dataclasses.dataclass(frozen=True)

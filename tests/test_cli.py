@@ -176,3 +176,24 @@ def test_every_flag_of_every_subcommand_has_help_text(capsys):
                 undocumented.append(f"pe-mjx {name} {flag}")
     assert counted > 100  # every subcommand's flags were seen (train alone has > 60)
     assert not undocumented, f"flags without help text: {undocumented}"
+
+
+def test_training_summary_names_the_scene_so_that_its_commands_run(tmp_path, capsys):
+    """The commands printed after a run: a preset's scene by --preset, a scene of its own (here
+    3 evaders at 24-6-12) by the run's config.json, and a frozen team by its policy."""
+    from types import SimpleNamespace
+
+    from pe_mjx.cli import _training_summary
+    from pe_mjx.experiment import default_config
+
+    state = SimpleNamespace(env_steps=64, iteration=1, teams={"evader": None})
+    own = default_config("24-6-12").override(
+        {"env.name": "24-3-12", "env.evader.num_agents": 3, "pursuer.policy": "mix-20-5-8"}
+    )
+    _training_summary(tmp_path, state, own)
+    said = capsys.readouterr().out
+    assert f"--config {tmp_path}/config.json" in said and "--preset" not in said, said
+    assert "--pursuers mix-20-5-8 scripted --evaders" in said, said
+    _training_summary(tmp_path, state, default_config("24-6-12"))
+    said = capsys.readouterr().out
+    assert "--preset 24-6-12 " in said and "pe-mjx view --preset 24-6-12" in said, said
