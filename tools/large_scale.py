@@ -8,8 +8,8 @@ against each other in four scenes at the paper's density: 20-5-8 (where it was t
 60-15-30 and 120-30-60 (held out) and 240-60-120; and, at 240-60-120, the ablation over k (the
 same parameters with k = 2, 8, 16, full attention being docs/data/transfer-240-60-120-3m; and
 the MEAN and BIRNN co-evolutions' pursuers with k = 4); and in every scene the evaders of the
-same policy fine-tuned at 60-15-30 (`e-mix-k4-ft-60-15-30`) against the local and the scripted
-pursuers.
+same policy fine-tuned at 60-15-30 (`e-mix-k4-ft-60-15-30`) and then at 240-60-120
+(`e-mix-k4-ft-240-60-120`) against the local and the scripted pursuers.
 Each (scene, part) is one `pe-mjx evaluate` report under OUT/<scene>/<part>/; OUT/summary.json
 and OUT/summary.md gather the headline numbers that docs/results.md quotes. A part whose
 results.json exists is kept (delete it to play it again), so an interrupted run continues where
@@ -39,9 +39,12 @@ LOCAL = "mix-20-5-8-3m-k4"
 """The shipped local-attention policy (tools/ship_policy.py mix-20-5-8-3m ... --nearest-k 4)."""
 FULL = "mix-20-5-8-3m"
 """The same parameters with full attention (the Table III policy)."""
-TUNED_EVADER = "e-mix-k4-ft-60-15-30"
-"""LOCAL's evaders fine-tuned at 60-15-30 against LOCAL's frozen pursuers (`--evader.init`;
-its model card in assets/policies/README.md): the evader half at scale."""
+TUNED_EVADERS = {
+    "tuned-evader": "e-mix-k4-ft-60-15-30",
+    "tuned-evader-240": "e-mix-k4-ft-240-60-120",
+}
+"""Part -> LOCAL's evaders fine-tuned against LOCAL's frozen pursuers (`--evader.init`; model
+cards in assets/policies/README.md): at 60-15-30, then that one again at 240-60-120."""
 ABLATION = ((FULL, 2), (FULL, 8), (FULL, 16), ("mean-20-5-8-3m", 4), ("birnn-20-5-8-3m", 4))
 """(policy, k) pairs of the ablation at the largest scene: k for MIX, and MEAN's pooling and
 BIRNN's recurrence made local with the same k as the shipped MIX."""
@@ -87,8 +90,9 @@ def play(args: Args) -> dict:
             trials = 100 if name == "20-5-8" else args.trials
             parts = {
                 "main": ([LOCAL, "scripted"], [LOCAL, FULL, "scripted"]),
-                "tuned-evader": ([LOCAL, "scripted"], [TUNED_EVADER]),
             }
+            for part, tuned in TUNED_EVADERS.items():
+                parts[part] = ([LOCAL, "scripted"], [tuned])
             if name == args.scenes[-1]:
                 # Full attention at 240-60-120 takes about 95 s per trial on 2 CPU cores: its
                 # row is docs/data/transfer-240-60-120-3m (5 trials), quoted beside these.
