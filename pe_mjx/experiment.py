@@ -182,10 +182,16 @@ class TeamTraining:
     the parameter shapes of `network` in this scene (MIX, MEAN and BIRNN read any entity
     counts; an MLP only those it was trained with). A resumed run continues from its own
     checkpoint and ignores this."""
+    critic_warmup: int = 0
+    """For the run's first this many iterations only the team's value head learns (the
+    policy head and the encoder the two heads share stay as they are): when fine-tuning in a
+    scene where the critic that came with `init` is far off, its advantages would otherwise
+    move the actor before the critic has caught up."""
 
     def __post_init__(self) -> None:
         check_finite(self)
         _check(bool(self.policy), "policy", "must be learn, scripted, random or a run")
+        _check(self.critic_warmup >= 0, "critic_warmup", f"must be >= 0, got {self.critic_warmup}")
         _check(
             self.init is None or (bool(self.init) and self.learns),
             "init",

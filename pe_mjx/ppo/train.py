@@ -22,6 +22,7 @@ are replicated and XLA inserts the gradient all-reduce, so the same code runs on
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -56,6 +57,27 @@ class TeamState:
     params: Any
     opt_state: Any
     normalizer: dict[str, running_statistics.RunningStatisticsState]
+
+
+VALUE_HEAD = ("value_hidden_", "value_out")
+"""Name prefixes of the value head's parameters in `networks.ActorCritic`."""
+
+
+def _critic_first_update(loss_fn: Callable[..., Any], optimizer: Any, live: jax.Array):
+    """Brax's `gradient_update_fn` (same call and results) with every gradient outside the
+    value head multiplied by `live` (0.0 while the critic warms up, then 1.0)."""
+
+    def keep(path: tuple, grad: jax.Array) -> jax.Array:
+        names = [str(getattr(k, "key", k)) for k in path]
+        return grad if any(n.startswith(VALUE_HEAD) for n in names) else grad * live
+
+    def update(params: Any, *args: Any, optimizer_state: Any) -> tuple:
+        (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, *args)
+        grads = jax.tree_util.tree_map_with_path(keep, grads)
+        updates, optimizer_state = optimizer.update(grads, optimizer_state)
+        return (loss, aux), optax.apply_updates(params, updates), optimizer_state
+
+    return update
 
 
 @struct.dataclass
@@ -265,7 +287,7 @@ class Trainer:
         return jax.tree.map(fold, batch)
 
     def _update_team(
-        self, team: str, ts: TeamState, batch: TeamBatch, rng: jax.Array
+        self, team: str, ts: TeamState, batch: TeamBatch, rng: jax.Array, iteration: jax.Array
     ) -> tuple[TeamState, dict[str, jax.Array]]:
         cfg = self.config.ppo
         network = self.networks[team]
@@ -276,7 +298,15 @@ class Trainer:
             value_coef=cfg.value_coef,
             entropy_coef=cfg.entropy_coef,
         )
-        update = gradients.gradient_update_fn(loss_fn, self.optimizers[team], None, has_aux=True)
+        warmup = self.config.team(team).critic_warmup
+        if warmup:
+            update = _critic_first_update(
+                loss_fn, self.optimizers[team], live=(iteration >= warmup).astype(jnp.float32)
+            )
+        else:
+            update = gradients.gradient_update_fn(
+                loss_fn, self.optimizers[team], None, has_aux=True
+            )
         n = batch.actions.shape[0]
         mb = n // cfg.num_minibatches
 
@@ -313,7 +343,9 @@ class Trainer:
                 team_ts.params, normalize_obs(env_state.obs[team], normalizer)
             )
             batch = self._team_batch(team, team_ts, team_data, bootstrap)
-            team_ts, losses = self._update_team(team, team_ts, batch, update_keys[team])
+            team_ts, losses = self._update_team(
+                team, team_ts, batch, update_keys[team], ts.iteration
+            )
             teams[team] = team_ts
             for k, v in losses.items():
                 metrics[f"loss/{team}/{k}"] = v

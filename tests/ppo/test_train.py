@@ -68,6 +68,37 @@ def test_fixed_opponent_is_not_trained():
     assert "loss/pursuer/entropy" in metrics and "loss/evader/entropy" not in metrics
 
 
+def test_a_critic_warmup_moves_only_the_value_head_until_it_ends():
+    """`critic_warmup` 1: the first iteration changes the pursuer's value head alone (policy
+    head and shared encoder exactly as they were); the second changes every part."""
+    trainer = Trainer(tiny(**{"evader.policy": "scripted", "pursuer.critic_warmup": 1}))
+    step = jax.jit(trainer.iteration)
+
+    def moved(before, after):
+        """Each top-level module of the network: whether any of its parameters changed."""
+        return {
+            name: any(
+                bool(np.any(x != y))
+                for x, y in zip(
+                    jax.tree.leaves(before["params"][name]),
+                    jax.tree.leaves(after["params"][name]),
+                    strict=True,
+                )
+            )
+            for name in before["params"]
+        }
+
+    state0 = trainer.init()
+    params0 = jax.device_get(state0.teams["pursuer"].params)
+    state1, _ = step(state0)
+    params1 = jax.device_get(state1.teams["pursuer"].params)
+    first = moved(params0, params1)
+    assert {n for n, m in first.items() if m} == {"value_hidden_0", "value_hidden_1", "value_out"}
+    state2, _ = step(state1)
+    second = moved(params1, jax.device_get(state2.teams["pursuer"].params))
+    assert all(second.values()), second
+
+
 def test_pursuers_learn_to_capture_the_scripted_evader():
     """Pursuers trained briefly capture clearly more often than the untrained policy.
 
