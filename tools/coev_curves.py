@@ -34,7 +34,7 @@ SERIES = {
         "scripted pursuers vs learned evaders",
         "tab:orange",
     ),
-    "episode/success_rate": ("success", "learned vs learned (training episodes)", "tab:green"),
+    "episode/success_rate": ("success", "training episodes (the run's own two teams)", "tab:green"),
     "eval/pursuer_vs_scripted/length": (
         "length",
         "learned pursuers vs scripted evaders",
