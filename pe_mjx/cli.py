@@ -215,8 +215,8 @@ def _check_run_learned(flag: str, spec: str, team: str) -> None:
 
 
 def _check_opponents(config: ExperimentConfig) -> None:
-    """A team played frozen from a run, or started from one (`init`): its checkpoint is checked
-    before anything is written."""
+    """A team played frozen from a run: its checkpoint is checked before anything is written.
+    A team started from one (`init`) is read and checked by `train` itself, before it writes."""
     for team in ("pursuer", "evader"):
         spec = config.team(team).policy
         if spec != "learn" and spec not in BUILTIN_POLICIES:
@@ -224,8 +224,6 @@ def _check_opponents(config: ExperimentConfig) -> None:
         start = config.team(team).init
         if start in BUILTIN_POLICIES:
             _fail(f"--{team}.init: {start} has no parameters; give a run or a shipped policy")
-        if start is not None:
-            _check_run_learned(f"--{team}.init", start, team)
 
 
 def run_train(args: TrainArgs) -> None:

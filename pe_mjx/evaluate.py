@@ -45,9 +45,9 @@ from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
 
 TRIAL_FIELDS = ("success_rate", "travel_distance", "pursuit_cost", "evaders_incapacitated")
+TRIAL_FIELDS += ("length",)
 DISTANCE_KEYS = ("travel_distance",)
 """The per-trial fields that are float32 sums of distances (the others are counts and rates)."""
-TRIAL_FIELDS += ("length",)
 
 MLP_PADDED_NOTE = (
     "\\* MLP policy run at entity counts other than its training counts: its "
@@ -275,8 +275,8 @@ def cross_confrontation(
 SAME_DISTANCE_RTOL = 1e-6
 """How far a replayed trial's distances may be from the earlier ones (relative) and still be the
 same game: a few float32 roundings (the distances are float32 sums over an episode's steps; a
-change in how they are summed moves them by about 1e-8 relative, a change in any move of
-the game by far more)."""
+change in how they are summed moved Table IV's by at most 5e-8 relative, a change in any move
+of the game moves them by far more)."""
 
 
 def _same_trials(old: dict[str, list], new: dict[str, np.ndarray]) -> bool:

@@ -71,8 +71,8 @@ class ReproduceArgs:
     """A table whose results.json exists but lacks runs found since (a method added) is played
     again keeping its pairings of unchanged policies (same fingerprints): one of them is
     replayed and must come out the same trial for trial (distances up to float32 rounding),
-    then only the new pairings are
-    played (if it differs, the whole table is). Without it such a table is kept as it is."""
+    then only the new pairings are played (if it differs, the whole table is). Without it such
+    a table is kept as it is."""
 
 
 def table_scales(table: str, transfer_evaders: str = "paper") -> tuple[str, str, str]:

@@ -158,13 +158,12 @@ def initial_variables(trainer: Trainer) -> dict[str, Any]:
     """The stored variables ({"params", "normalizer"}) of each learned team whose config names
     an `init` policy, checked against the shapes this run's network needs (from the abstract
     train state: nothing is compiled)."""
+    sources = {t: s for t in trainer.learned if (s := trainer.config.team(t).init) is not None}
+    if not sources:
+        return {}
+    abstract = trainer.abstract_state().teams
     found: dict[str, Any] = {}
-    abstract = None
-    for team in trainer.learned:
-        source = trainer.config.team(team).init
-        if source is None:
-            continue
-        abstract = abstract or trainer.abstract_state().teams
+    for team, source in sources.items():
         try:
             restored = store.restore_policy_params(source, team, trainer.env_config)
         except store.CheckpointError as err:
