@@ -217,6 +217,12 @@ class RewardConfig:
     """Numerator of f_p = scale / max(d, d_cap) (10 in the paper)."""
     capture_distance: float = 0.25
     """d_cap in metres: floor of the distance in f_p (caps the shaping term at scale/d_cap)."""
+    pursuit_nearest: int | None = None
+    """Sum f_p's shaping over each pursuer's k nearest active evaders only (ours; None: over every
+    evader, as the paper). In a large arena the paper's sum is dominated by evaders far out of a
+    local policy's view: at a 240-60-120 reset it is about 63 per pursuer and step, 17 of it from
+    the 4 nearest evaders (at 20-5-8: 16.5 in all), so a pursuer's return is mostly what it can
+    neither see nor change; set it to the network's `nearest_k` there (docs/results.md, 10)."""
     capture: float = 5000.0
     """r_s: reward to each pursuer that captures an evader this step. It must beat shadowing the
     evader at d_cap for the rest of the discounted horizon, f_p,max / (1 - gamma) = 40 / 0.01 =
@@ -239,6 +245,11 @@ class RewardConfig:
         _check(self.collision <= 0, "reward.collision", "(r_c) must be <= 0")
         _check(self.danger_distance > 0, "reward.danger_distance", "must be > 0")
         _check(self.capture_distance > 0, "reward.capture_distance", "must be > 0")
+        _check(
+            self.pursuit_nearest is None or self.pursuit_nearest >= 1,
+            "reward.pursuit_nearest",
+            "must be >= 1 or None",
+        )
         _check(self.evader_flee >= 0, "reward.evader_flee", "must be >= 0")
         _check(self.flee_range > 0, "reward.flee_range", "must be > 0")
         _check(

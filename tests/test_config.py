@@ -102,6 +102,7 @@ def test_bad_arena_field_named(kw, field):
         ({"collision": 1.0}, "reward.collision"),
         ({"danger_distance": 0.0}, "reward.danger_distance"),
         ({"capture_distance": -1.0}, "reward.capture_distance"),
+        ({"pursuit_nearest": 0}, "reward.pursuit_nearest"),
     ],
 )
 def test_bad_reward_field_named(kw, field):

@@ -63,7 +63,10 @@ def paper_terms(
     # Pursuer-evader terms, f_p of eq. (3).
     evader_active = active[None, p:]
     shaping = rc.pursuit_scale / jnp.maximum(dist[:p, p:], rc.capture_distance)
-    pursuit = jnp.sum(jnp.where(evader_active, shaping, 0.0), axis=1)
+    shaping = jnp.where(evader_active, shaping, 0.0)
+    if rc.pursuit_nearest is not None and rc.pursuit_nearest < n - p:
+        shaping = jax.lax.top_k(shaping, rc.pursuit_nearest)[0]  # the nearest: largest 1/d
+    pursuit = jnp.sum(shaping, axis=1)
     capture = jnp.sum(jnp.where(capture_pairs, rc.capture, 0.0), axis=1)
     inactive_other = ~evader_active & ~capture_pairs
     pursuer_opp = jnp.sum(jnp.where(inactive_other, pair_fc[:p, p:], 0.0), axis=1)

@@ -14,6 +14,7 @@ from pe_mjx.stages.geometry import geometry
 from pe_mjx.stages.rewards import (
     collision_reward,
     flee_term,
+    paper_terms,
     reward_terms,
     team_rewards,
     zero_terms,
@@ -53,3 +54,33 @@ def test_flee_pays_for_moving_away_from_the_nearest_pursuer():
     assert float(flee_term(CFG, old, new, active)[0]) == 0.0  # off in the presets
     cfg = CFG.replace(reward=dataclasses.replace(CFG.reward, evader_flee=10.0, flee_range=5.0))
     assert float(flee_term(cfg, old, new, active)[0]) == pytest.approx(10 * 0.2, rel=1e-5)
+
+
+def test_pursuit_nearest_sums_the_shaping_over_the_k_nearest_active_evaders():
+    base = get_preset("8-2-4")
+    cfg = base.replace(
+        pursuer=dataclasses.replace(base.pursuer, num_agents=4),
+        evader=dataclasses.replace(base.evader, num_agents=3),
+        arena=dataclasses.replace(base.arena, num_obstacles=0),
+    )
+    p = cfg.pursuer.num_agents
+    pos = jnp.asarray(
+        [[0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [-2.0, -2.0]]  # pursuers
+        + [[0.5, 0.0], [0.0, 1.0], [-1.5, 0.0]]  # evaders at 0.5, 1.0, 1.5 m from pursuer 0
+    )
+    g = geometry(pos, jnp.zeros(7), jnp.zeros((0, 3)))
+    active = jnp.ones(7, dtype=bool).at[p + 0].set(False)  # the nearest evader is down
+    none = jnp.zeros((p, 3), bool)
+
+    def pursuit(k):
+        c = cfg.replace(reward=dataclasses.replace(cfg.reward, pursuit_nearest=k))
+        return np.asarray(paper_terms(c, g, active, none, jnp.zeros((0, 3)))["pursuer"]["pursuit"])
+
+    d = np.linalg.norm(np.asarray(pos[:p, None] - pos[None, p:]), axis=-1)
+    f = np.where(np.asarray(active[p:])[None], cfg.reward.pursuit_scale / d, 0.0)
+    np.testing.assert_allclose(pursuit(None), f.sum(1), rtol=1e-6)  # the paper's: every evader
+    np.testing.assert_allclose(pursuit(3), f.sum(1), rtol=1e-6)  # k >= E: the same
+    np.testing.assert_allclose(pursuit(1), f.max(1), rtol=1e-6)
+    # Pursuer 0's nearest evader is down: its k = 1 term is the one at 1 m.
+    assert pursuit(1)[0] == pytest.approx(cfg.reward.pursuit_scale / 1.0, rel=1e-6)
+    np.testing.assert_allclose(pursuit(2), np.sort(f, 1)[:, 1:].sum(1), rtol=1e-6)
