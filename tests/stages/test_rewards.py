@@ -64,10 +64,9 @@ def test_pursuit_nearest_sums_the_shaping_over_the_k_nearest_active_evaders():
         arena=dataclasses.replace(base.arena, num_obstacles=0),
     )
     p = cfg.pursuer.num_agents
-    pos = jnp.asarray(
-        [[0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [-2.0, -2.0]]  # pursuers
-        + [[0.5, 0.0], [0.0, 1.0], [-1.5, 0.0]]  # evaders at 0.5, 1.0, 1.5 m from pursuer 0
-    )
+    pursuers = [[0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [-2.0, -2.0]]
+    evaders = [[0.5, 0.0], [0.0, 1.0], [-1.5, 0.0]]  # 0.5, 1.0 and 1.5 m from pursuer 0
+    pos = jnp.asarray([*pursuers, *evaders])
     g = geometry(pos, jnp.zeros(7), jnp.zeros((0, 3)))
     active = jnp.ones(7, dtype=bool).at[p + 0].set(False)  # the nearest evader is down
     none = jnp.zeros((p, 3), bool)
