@@ -170,9 +170,10 @@ class Earlier:
         try:
             data = json.loads(path.read_text())
             meta, pairings = data["meta"], list(data["pairings"])
-            scene = json.loads(json.dumps(env_config.to_dict()))
-            same = (meta["env_config"], meta["trials"], meta["seed"], meta["backend"])
-            if same != (scene, trials, seed, backend):
+            # Both sides rebuilt as configs: a field added since (at its default) is the same game.
+            earlier_scene = EnvConfig.from_dict(meta["env_config"]).to_dict()
+            same = (earlier_scene, meta["trials"], meta["seed"], meta["backend"])
+            if same != (env_config.to_dict(), trials, seed, backend):
                 return None, f"{path} is of another scene, trial count, seed or backend"
             by_policies = {}
             for pairing in pairings:

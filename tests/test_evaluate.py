@@ -157,6 +157,12 @@ def test_adding_a_policy_keeps_the_pairings_already_played(tmp_path):
     again = ev.evaluate(both, both, out=out, log=lambda *_: None, keep=out, **kwargs)
     assert [r.kept for r in again["results"]] == [False, True, True, True]
     data = json.loads((out / "results.json").read_text())
+    # One written before a reward field existed (at its default, the same game) is kept too.
+    del data["meta"]["env_config"]["reward"]["pursuit_nearest"]
+    (out / "results.json").write_text(json.dumps(data))
+    again = ev.evaluate(both, both, out=out, log=lambda *_: None, keep=out, **kwargs)
+    assert [r.kept for r in again["results"]] == [False, True, True, True]
+    data = json.loads((out / "results.json").read_text())
     data["pairings"][0]["trials"]["length"][0] += 1
     (out / "results.json").write_text(json.dumps(data))
     said.clear()
