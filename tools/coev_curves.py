@@ -45,11 +45,24 @@ SERIES = {
         "scripted pursuers vs learned evaders",
         "tab:orange",
     ),
+    "eval/pursuer_vs_scripted/pursuer_teammate": (
+        "teammates",
+        "learned pursuers vs scripted evaders",
+        "tab:blue",
+    ),
+    "episode/pursuer_teammate": (
+        "teammates",
+        "training episodes (the run's own two teams)",
+        "tab:green",
+    ),
 }
 PANELS = {
     "success": "pursuer success rate (evaders captured / evaders)",
     "length": "episode length (steps; longer = evaders last longer)",
+    "teammates": "pursuers lost to teammates per episode",
 }
+OPTIONAL = ("teammates",)
+"""Panels drawn only for runs whose data has them (collected after they were added)."""
 EVERY = 10  # keep every 10th point of the per-iteration training series (the file stays small)
 
 
@@ -85,8 +98,9 @@ def draw(data: dict, figures: Path) -> list[Path]:
     figures.mkdir(parents=True, exist_ok=True)
     paths = []
     for name, series in data.items():
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4))
-        for ax, (panel, ylabel) in zip(axes, PANELS.items(), strict=True):
+        panels = {p: y for p, y in PANELS.items() if p not in OPTIONAL or _has(series, p)}
+        fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4))
+        for ax, (panel, ylabel) in zip(axes, panels.items(), strict=True):
             for tag, (where, label, color) in SERIES.items():
                 points = series.get(tag, [])
                 if where != panel or not points:
@@ -98,6 +112,10 @@ def draw(data: dict, figures: Path) -> list[Path]:
         title = f"{name}: each learned team against the scripted opponent"
         paths.append(_save(fig, title, figures / f"curves-{name}.png"))
     return paths
+
+
+def _has(series: dict, panel: str) -> bool:
+    return any(series.get(tag) for tag, (where, _, _) in SERIES.items() if where == panel)
 
 
 def _style(ax, panel: str, ylabel: str) -> None:
@@ -143,8 +161,9 @@ def draw_seeds(data: dict, figures: Path) -> list[Path]:
 
     paths = []
     for group, names in seed_groups(data).items():
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4))
-        for ax, (panel, ylabel) in zip(axes, PANELS.items(), strict=True):
+        panels = {p: y for p, y in PANELS.items() if p not in OPTIONAL}
+        fig, axes = plt.subplots(1, len(panels), figsize=(12, 4))
+        for ax, (panel, ylabel) in zip(axes, panels.items(), strict=True):
             for tag, (where, label, color) in SERIES.items():
                 if where != panel or not tag.startswith("eval/"):
                     continue
