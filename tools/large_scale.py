@@ -6,10 +6,12 @@ Plays the shipped local-attention MIX policy (`mix-20-5-8-3m-k4`: the 3M MIX co-
 parameters, each team reading only the 4 nearest entities of each type) and the scripted teams
 against each other in four scenes at the paper's density: 20-5-8 (where it was trained),
 60-15-30 and 120-30-60 (held out) and 240-60-120; and, at 240-60-120, the ablation over k (the
-same parameters with k = 2, 8, 16, full attention being docs/data/transfer-240-60-120-3m; and
+same parameters with k = 1, 2, 8, 16, full attention being docs/data/transfer-240-60-120-3m; and
 the MEAN and BIRNN co-evolutions' pursuers with k = 4); and in every scene the evaders of the
 same policy fine-tuned at 60-15-30 (`e-mix-k4-ft-60-15-30`) and then at 240-60-120
-(`e-mix-k4-ft-240-60-120`) against the local and the scripted pursuers.
+(`e-mix-k4-ft-240-60-120`) against the local and the scripted pursuers; and in every scene the
+pursuers fine-tuned at 240-60-120 against that evader (`p-mix-k4-ft-240-60-120`) against every
+evader above; and at 240-60-120, k = 1 and 2 against the evader fine-tuned there.
 Each (scene, part) is one `pe-mjx evaluate` report under OUT/<scene>/<part>/; OUT/summary.json
 and OUT/summary.md gather the headline numbers that docs/results.md quotes. A part whose
 results.json exists is kept (delete it to play it again), so an interrupted run continues where
@@ -45,7 +47,17 @@ TUNED_EVADERS = {
 }
 """Part -> LOCAL's evaders fine-tuned against LOCAL's frozen pursuers (`--evader.init`; model
 cards in assets/policies/README.md): at 60-15-30, then that one again at 240-60-120."""
-ABLATION = ((FULL, 2), (FULL, 8), (FULL, 16), ("mean-20-5-8-3m", 4), ("birnn-20-5-8-3m", 4))
+TUNED_PURSUERS = {"tuned-pursuer": "p-mix-k4-ft-240-60-120"}
+"""Part -> LOCAL's pursuers fine-tuned at 240-60-120 against the frozen `e-mix-k4-ft-240-60-120`
+with the pursuit shaping summed over the 4 nearest evaders (`reward.pursuit_nearest = 4`)."""
+ABLATION = (
+    (FULL, 1),
+    (FULL, 2),
+    (FULL, 8),
+    (FULL, 16),
+    ("mean-20-5-8-3m", 4),
+    ("birnn-20-5-8-3m", 4),
+)
 """(policy, k) pairs of the ablation at the largest scene: k for MIX, and MEAN's pooling and
 BIRNN's recurrence made local with the same k as the shipped MIX."""
 
@@ -93,11 +105,16 @@ def play(args: Args) -> dict:
             }
             for part, tuned in TUNED_EVADERS.items():
                 parts[part] = ([LOCAL, "scripted"], [tuned])
+            for part, tuned in TUNED_PURSUERS.items():
+                parts[part] = ([tuned], [LOCAL, FULL, "scripted", *TUNED_EVADERS.values()])
             if name == args.scenes[-1]:
                 # Full attention at 240-60-120 takes about 95 s per trial on 2 CPU cores: its
                 # row is docs/data/transfer-240-60-120-3m (5 trials), quoted beside these.
                 mix_k = [p for p, n in variants.items() if n.startswith(FULL)]
                 parts["ablation"] = (mix_k, ["scripted"])
+                # Smaller k against the evader fine-tuned against k = 4 (same parameters).
+                small_k = [p for p in mix_k if variants[p] in (f"{FULL}-k1", f"{FULL}-k2")]
+                parts["ablation-vs-tuned-evader"] = (small_k, [TUNED_EVADERS["tuned-evader-240"]])
                 for path, variant in variants.items():  # one part per other encoder
                     if path not in mix_k:
                         parts[f"ablation-{variant.split('-')[0]}"] = ([path], ["scripted"])
