@@ -10,8 +10,9 @@ same parameters with k = 1, 2, 8, 16, full attention being docs/data/transfer-24
 the MEAN and BIRNN co-evolutions' pursuers with k = 4); and in every scene the evaders of the
 same policy fine-tuned at 60-15-30 (`e-mix-k4-ft-60-15-30`) and then at 240-60-120
 (`e-mix-k4-ft-240-60-120`) against the local and the scripted pursuers; and in every scene the
-pursuers fine-tuned at 240-60-120 against that evader (`p-mix-k4-ft-240-60-120`) against every
-evader above; and at 240-60-120, k = 1 and 2 against the evader fine-tuned there.
+pursuers fine-tuned at 240-60-120 against that evader (`p-mix-k4-ft-240-60-120`), and those
+fine-tuned again at 20-5-8 (train/unfinished/p-mix-k4-ft8-20-5-8), against every evader above;
+and at 240-60-120, k = 1 and 2 against the evader fine-tuned there.
 Each (scene, part) is one `pe-mjx evaluate` report under OUT/<scene>/<part>/; OUT/summary.json
 and OUT/summary.md gather the headline numbers that docs/results.md quotes. A part whose
 results.json exists is kept (delete it to play it again), so an interrupted run continues where
@@ -47,9 +48,14 @@ TUNED_EVADERS = {
 }
 """Part -> LOCAL's evaders fine-tuned against LOCAL's frozen pursuers (`--evader.init`; model
 cards in assets/policies/README.md): at 60-15-30, then that one again at 240-60-120."""
-TUNED_PURSUERS = {"tuned-pursuer": "p-mix-k4-ft-240-60-120"}
+TUNED_PURSUERS = {
+    "tuned-pursuer": "p-mix-k4-ft-240-60-120",
+    "tuned-pursuer-then-20-5-8": str(ROOT / "train" / "unfinished" / "p-mix-k4-ft8-20-5-8"),
+}
 """Part -> LOCAL's pursuers fine-tuned at 240-60-120 against the frozen `e-mix-k4-ft-240-60-120`
-with the pursuit shaping summed over the 4 nearest evaders (`reward.pursuit_nearest = 4`)."""
+with the pursuit shaping summed over the 4 nearest evaders (`reward.pursuit_nearest = 4`); and
+those fine-tuned again, at 20-5-8 against the frozen full-attention E_MIX (a run directory: its
+last checkpoint)."""
 ABLATION = (
     (FULL, 1),
     (FULL, 2),
