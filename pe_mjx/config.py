@@ -220,9 +220,9 @@ class RewardConfig:
     pursuit_nearest: int | None = None
     """Sum f_p's shaping over each pursuer's k nearest active evaders only (ours; None: over every
     evader, as the paper). In a large arena the paper's sum is dominated by evaders far out of a
-    local policy's view: at a 240-60-120 reset it is about 63 per pursuer and step, 17 of it from
-    the 4 nearest evaders (at 20-5-8: 16.5 in all), so a pursuer's return is mostly what it can
-    neither see nor change; set it to the network's `nearest_k` there (docs/results.md, 10)."""
+    local policy's view: at a 240-60-120 reset it is 63 per pursuer and step, 17 of it from the
+    4 nearest evaders (at 20-5-8: 16.6 in all; tools/pursuit_shaping.py), so a pursuer's return
+    is mostly what it can neither see nor change; set it to the network's `nearest_k` there."""
     capture: float = 5000.0
     """r_s: reward to each pursuer that captures an evader this step. It must beat shadowing the
     evader at d_cap for the rest of the discounted horizon, f_p,max / (1 - gamma) = 40 / 0.01 =
