@@ -44,8 +44,13 @@ from pe_mjx.outcomes import outcome_counts
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
 
-TRIAL_FIELDS = ("success_rate", "travel_distance", "pursuit_cost", "evaders_incapacitated")
-TRIAL_FIELDS += ("length",)
+TRIAL_FIELDS = (
+    "success_rate",
+    "travel_distance",
+    "pursuit_cost",
+    "evaders_incapacitated",
+    "length",
+)
 DISTANCE_KEYS = ("travel_distance",)
 """The per-trial fields that are float32 sums of distances (the others are counts and rates)."""
 

@@ -63,21 +63,20 @@ VALUE_HEAD = ("value_hidden_", "value_out")
 """Name prefixes of the value head's parameters in `networks.ActorCritic`."""
 
 
-def _critic_first_update(loss_fn: Callable[..., Any], optimizer: Any, live: jax.Array):
-    """Brax's `gradient_update_fn` (same call and results) with every gradient outside the
-    value head multiplied by `live` (0.0 while the critic warms up, then 1.0)."""
+def _critic_first(loss_fn: Callable[..., Any], live: jax.Array) -> Callable[..., Any]:
+    """`loss_fn` with the gradient of every parameter outside the value head multiplied by `live`
+    (0.0 while the critic warms up, then 1.0); its value is unchanged. For Brax's
+    `gradient_update_fn`, which then takes zero gradients for the actor and the encoder."""
 
-    def keep(path: tuple, grad: jax.Array) -> jax.Array:
-        names = [str(getattr(k, "key", k)) for k in path]
-        return grad if any(n.startswith(VALUE_HEAD) for n in names) else grad * live
+    def scaled(path: tuple, x: jax.Array) -> jax.Array:
+        if any(str(getattr(k, "key", k)).startswith(VALUE_HEAD) for k in path):
+            return x
+        return live * x + (1.0 - live) * jax.lax.stop_gradient(x)
 
-    def update(params: Any, *args: Any, optimizer_state: Any) -> tuple:
-        (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, *args)
-        grads = jax.tree_util.tree_map_with_path(keep, grads)
-        updates, optimizer_state = optimizer.update(grads, optimizer_state)
-        return (loss, aux), optax.apply_updates(params, updates), optimizer_state
+    def wrapped(params: Any, *args: Any, **kwargs: Any) -> Any:
+        return loss_fn(jax.tree_util.tree_map_with_path(scaled, params), *args, **kwargs)
 
-    return update
+    return wrapped
 
 
 @struct.dataclass
@@ -299,14 +298,9 @@ class Trainer:
             entropy_coef=cfg.entropy_coef,
         )
         warmup = self.config.team(team).critic_warmup
-        if warmup:
-            update = _critic_first_update(
-                loss_fn, self.optimizers[team], live=(iteration >= warmup).astype(jnp.float32)
-            )
-        else:
-            update = gradients.gradient_update_fn(
-                loss_fn, self.optimizers[team], None, has_aux=True
-            )
+        if warmup:  # a run without one keeps exactly Brax's update
+            loss_fn = _critic_first(loss_fn, live=(iteration >= warmup).astype(jnp.float32))
+        update = gradients.gradient_update_fn(loss_fn, self.optimizers[team], None, has_aux=True)
         n = batch.actions.shape[0]
         mb = n // cfg.num_minibatches
 
