@@ -39,20 +39,23 @@ class Args:
 def shaping(name: str, arenas: int) -> dict[str, float]:
     base = scene(name)
     env = PursuitEvasionEnv(base, backend="kinematic")
-    p = base.pursuer.num_agents
-    out = {}
-    for k in (None, 4, 1):
-        config = base.replace(reward=dataclasses.replace(base.reward, pursuit_nearest=k))
-        values = []
-        for seed in range(arenas):
-            state = env.reset(jax.random.PRNGKey(seed))
-            world, obstacles = state.world, env.obstacles(state)
-            g = geometry(world.pos, world.yaw, obstacles)
-            none = jnp.zeros((p, base.evader.num_agents), bool)
+    p, e = base.pursuer.num_agents, base.evader.num_agents
+    configs = {
+        "all evaders" if k is None else f"{k} nearest": base.replace(
+            reward=dataclasses.replace(base.reward, pursuit_nearest=k)
+        )
+        for k in (None, 4, 1)
+    }
+    values: dict[str, list[float]] = {label: [] for label in configs}
+    for seed in range(arenas):
+        state = env.reset(jax.random.PRNGKey(seed))
+        world, obstacles = state.world, env.obstacles(state)
+        g = geometry(world.pos, world.yaw, obstacles)
+        none = jnp.zeros((p, e), bool)
+        for label, config in configs.items():
             terms = paper_terms(config, g, world.active, none, obstacles)
-            values.append(np.asarray(terms["pursuer"]["pursuit"]).mean())
-        out["all evaders" if k is None else f"{k} nearest"] = round(float(np.mean(values)), 2)
-    return out
+            values[label].append(float(np.asarray(terms["pursuer"]["pursuit"]).mean()))
+    return {label: round(float(np.mean(v)), 2) for label, v in values.items()}
 
 
 def main(args: Args) -> None:
