@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Any, Literal
 
@@ -63,6 +64,13 @@ class NetworkConfig:
     mix_queries: Literal["own", "all"] = "own"
     """MIX only: "own", the agent's own token attends over all tokens (O(N) per agent); "all",
     full self-attention over all tokens, pooled (O(N^2) per agent, 5-10x slower on CPU)."""
+    length_unit: float | None = None
+    """Metres per unit of the lengths the network reads about other entities (distances to
+    teammates, opponents and obstacles; obstacle radii). None: the arena radius, as in the paper
+    (III-B). A fixed unit makes a neighbourhood read the same in any arena of the same density,
+    so what a policy learned at one scale applies at another; the agent's own distance from the
+    centre stays in arena radii (it places the agent relative to the wall). A policy trained at
+    radius R with None plays exactly as before with length_unit = R there."""
 
     def __post_init__(self) -> None:
         _check(self.encoder in ENCODERS, "encoder", f"must be one of {ENCODERS}")
@@ -80,6 +88,11 @@ class NetworkConfig:
             f"must be None or >= 1, got {self.nearest_k}",
         )
         _check(self.mix_queries in ("own", "all"), "mix_queries", "must be own or all")
+        _check(
+            self.length_unit is None or 0 < self.length_unit < math.inf,
+            "length_unit",
+            f"must be None or a positive number of metres, got {self.length_unit}",
+        )
         if self.mlp_counts is not None:
             counts = tuple(self.mlp_counts)
             _check(

@@ -32,6 +32,9 @@ FEATURES = {
     "obstacles": OBSTACLE_FEATURES,
 }
 """Features per entity of each block."""
+LENGTH_FEATURES = {"teammates": (1,), "opponents": (1,), "obstacles": (0, 3)}
+"""Per block, the features that are lengths relative to the observer's neighbours (distance;
+an obstacle's radius), in arena radii: what `NetworkConfig.length_unit` puts in metres."""
 MASK_KEYS = {
     "teammates": "teammate_mask",
     "opponents": "opponent_mask",
@@ -82,6 +85,7 @@ __all__ = [
     "ENTITY_TYPES",
     "EVADER_TERMS",
     "FEATURES",
+    "LENGTH_FEATURES",
     "MASK_KEYS",
     "NUM_CAUSES",
     "OBSERVATION_KEYS",

@@ -1,5 +1,5 @@
-"""tools/ship_policy.py --nearest-k: local attention over a run's parameters, and the shipped
-`mix-20-5-8-3m-k4` made that way."""
+"""tools/ship_policy.py --nearest-k and --length-unit: local attention and neighbour lengths in
+metres over a run's parameters, and the shipped policies made that way."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import pe_mjx
-from pe_mjx.policy.inference import normalize_obs
+from pe_mjx.policy.inference import in_length_unit, normalize_obs
 from pe_mjx.policy.resolve import resolve_policy
 from pe_mjx.policy.store import read_meta
 from tests.tool_modules import load_tool
@@ -68,6 +68,42 @@ def test_local_attention_changes_what_is_read_not_the_parameters(derived, team):
             for p in (full, local)
         ]
         assert bool(np.allclose(logits[0], logits[1], atol=1e-5)) == same, preset
+
+
+def test_a_bad_length_unit_is_one_clear_error(tmp_path):
+    tool = _tool()
+    with pytest.raises(SystemExit, match="--length-unit must be a positive number"):
+        tool.ship(tool.Args(FULL, "m0", dest=tmp_path, length_unit=-5.0))
+    assert not (tmp_path / "m0").exists()
+
+
+def test_a_length_unit_of_the_training_radius_plays_as_before_there_and_in_metres_elsewhere(
+    tmp_path,
+):
+    """mix-20-5-8-3m (trained in a 5 m arena) shipped with neighbour lengths in units of 5 m:
+    the same logits at 20-5-8; at 8-2-4 (3.5 m) the original network's logits on observations
+    whose neighbour lengths are multiplied by 3.5 / 5, which differ from the original's."""
+    tool = _tool()
+    metric = tool.ship(tool.Args(FULL, "m5", dest=tmp_path, length_unit=5.0))
+    config = json.loads((metric / "config.json").read_text())
+    assert config["experiment"]["pursuer"]["network"]["length_unit"] == 5.0
+    assert config["derived_from"]["length_unit"] == 5.0
+    for preset, scale in (("20-5-8", 1.0), ("8-2-4", 0.7)):
+        env = pe_mjx.make(preset, backend="kinematic")
+        full = resolve_policy(FULL, "pursuer", env.config)
+        in_metres = resolve_policy(metric, "pursuer", env.config)
+        assert in_metres.label.startswith("P_MIX-5m(20,5,8)")
+        obs = jax.jit(env.reset)(jax.random.key(0)).obs["pursuer"]
+        scaled = in_length_unit(obs, scale)
+        key = jax.random.key(3)
+        np.testing.assert_array_equal(in_metres(obs, key), full(scaled, key))
+        logits = [
+            full.network.apply(
+                full.variables["params"], normalize_obs(o, full.variables["normalizer"])
+            )[0]
+            for o in (obs, scaled)
+        ]
+        assert bool(np.allclose(logits[0], logits[1], atol=1e-5)) == (scale == 1.0), preset
 
 
 def test_the_shipped_local_policy_is_the_3m_mix_with_k4():

@@ -20,6 +20,13 @@ entities of each type (`NetworkConfig.nearest_k`, pe_mjx/networks.py) before enc
 encoders' parameters do not depend on how many entities they see, so this changes which tokens
 the network reads, not what it learned: no training. The copy's metadata and config.json record
 the new `nearest_k` and `derived_from` (the run, its step and its former network configs).
+
+    python tools/ship_policy.py RUN NAME --length-unit 5
+
+ships the same parameters reading the distances to other entities in units of 5 metres in any
+arena (`NetworkConfig.length_unit`) instead of in arena radii: a policy trained in an arena of
+radius 5 m plays exactly as before there, and sees a neighbourhood of the same density the same
+way in a larger arena. Both options may be given together; both are recorded the same way.
 """
 
 from __future__ import annotations
@@ -54,9 +61,15 @@ class Args:
     nearest_k: int | None = None
     """Ship with local attention: both teams' networks read only the k nearest entities of each
     type (the parameters are the run's, unchanged)."""
+    length_unit: float | None = None
+    """Ship reading neighbour distances in units of this many metres, in any arena (the
+    parameters are the run's, unchanged)."""
 
 
 def ship(args: Args) -> Path:
+    changes = {"nearest_k": args.nearest_k, "length_unit": args.length_unit}
+    changes = {k: v for k, v in changes.items() if v is not None}
+    _check_changes(changes)  # before anything is copied
     meta = store.read_meta(args.run, args.step)  # validates the run and the step
     step = meta["step"]
     dest = (args.dest or policies_dir()) / args.name
@@ -75,8 +88,8 @@ def ship(args: Args) -> Path:
         elif (src / item).exists():
             shutil.copy2(src / item, out / item)
     shutil.copy2(args.run / "config.json", dest / "config.json")
-    if args.nearest_k is not None:
-        with_nearest_k(dest, args.nearest_k, f"{args.run} step {step}")
+    if changes:
+        with_network(dest, changes, f"{args.run} step {step}")
     link = ROOT / "assets" / "policies" / args.name
     if args.dest is None and not link.is_symlink():
         link.symlink_to(Path("../../pe_mjx/assets/policies") / args.name)
@@ -85,30 +98,39 @@ def ship(args: Args) -> Path:
     return dest
 
 
-def _set_nearest_k(tree: dict, k: int) -> dict:
-    """Sets `nearest_k` in every network config of a run's config or metadata tree."""
+def _check_changes(changes: dict) -> None:
+    if changes.get("nearest_k", 1) < 1:
+        raise SystemExit(
+            f"ship_policy: error: --nearest-k must be >= 1, got {changes['nearest_k']}"
+        )
+    unit = changes.get("length_unit", 1.0)
+    if not 0 < unit < float("inf"):
+        raise SystemExit(f"ship_policy: error: --length-unit must be a positive number, got {unit}")
+
+
+def _set_network(tree: dict, changes: dict) -> dict:
+    """Sets `changes` in every network config of a run's config or metadata tree."""
     for net in tree.get("network_configs", {}).values():
-        net["nearest_k"] = k
+        net.update(changes)
     experiment = tree.get("experiment", {})
     for team in ("pursuer", "evader"):
         if "network" in experiment.get(team, {}):
-            experiment[team]["network"]["nearest_k"] = k
+            experiment[team]["network"].update(changes)
     return tree
 
 
-def with_nearest_k(run_copy: Path, k: int, source: str) -> None:
-    """Rewrites a policy-only copy (`ship`'s output) so that both teams' networks keep the k
-    nearest entities of each type; records where it came from. Parameters are untouched."""
-    if k < 1:
-        raise SystemExit(f"ship_policy: error: --nearest-k must be >= 1, got {k}")
+def with_network(run_copy: Path, changes: dict, source: str) -> None:
+    """Rewrites a policy-only copy (`ship`'s output) with `changes` (`nearest_k`, `length_unit`)
+    in both teams' network configs; records where it came from. Parameters are untouched."""
+    _check_changes(changes)
     step = store.latest_step(run_copy)
     meta_file = run_copy / store.CHECKPOINT_DIR / str(step) / "meta" / "metadata"
     meta = json.loads(meta_file.read_text())
     before = copy.deepcopy(meta["network_configs"])
-    meta_file.write_text(json.dumps(_set_nearest_k(meta, k)))
+    meta_file.write_text(json.dumps(_set_network(meta, changes)))
     config_file = run_copy / "config.json"
-    config = _set_nearest_k(json.loads(config_file.read_text()), k)
-    config["derived_from"] = {"run": source, "network_configs": before, "nearest_k": k}
+    config = _set_network(json.loads(config_file.read_text()), changes)
+    config["derived_from"] = {"run": source, "network_configs": before, **changes}
     config_file.write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
     store.read_meta(run_copy)  # still valid
 

@@ -22,7 +22,7 @@ from pe_mjx.config import EnvConfig
 from pe_mjx.names import OBSERVATION_KEYS, other_team
 from pe_mjx.networks import greedy_actions
 from pe_mjx.policy.export_loader import FORMAT, META, PROGRAM, VERSION
-from pe_mjx.policy.inference import dummy_obs, normalize_obs
+from pe_mjx.policy.inference import dummy_obs, length_scale, network_inputs
 from pe_mjx.policy.store import restore_policy_params
 from pe_mjx.stages.dynamics import action_table
 
@@ -43,11 +43,14 @@ def export_policy(
     """
     network, state, net_config, config, _, meta = restore_policy_params(run_dir, team, config)
     num_actions = config.team(team).num_actions
-    params, normalizer = state["params"], state["normalizer"]
+    params = state["params"]
+    scale = length_scale(net_config, config)
+    if scale is not None:  # baked in: the file plays this scene's counts and arena only
+        state = {**state, "length_scale": np.float32(scale)}
 
     def greedy(*arrays: jax.Array) -> tuple[jax.Array, jax.Array]:
         obs = dict(zip(INPUTS, arrays, strict=True))
-        logits, _ = network.apply(params, normalize_obs(obs, normalizer))
+        logits, _ = network.apply(params, network_inputs(obs, state))
         return greedy_actions(logits), logits
 
     obs = dummy_obs(config, team)

@@ -20,6 +20,7 @@ from pe_mjx.experiment import NetworkConfig
 from pe_mjx.names import (
     AGENT_FEATURES,
     ENTITY_KEYS,
+    LENGTH_FEATURES,
     MASK_KEYS,
     OBSTACLE_FEATURES,
     OWN_FEATURES,
@@ -45,6 +46,30 @@ def dummy_obs(env_config: EnvConfig, team: str) -> dict[str, jax.Array]:
         "obstacle_mask": jnp.ones((a, k), bool),
         "action_mask": jnp.ones((a, n_act), bool),
     }
+
+
+def length_scale(network_config: NetworkConfig, env_config: EnvConfig) -> float | None:
+    """The factor from the env's lengths (arena radii) to the network's (`length_unit` metres)
+    in the scene `env_config`; None for a network that reads arena radii."""
+    unit = network_config.length_unit
+    return None if unit is None else env_config.arena.radius / unit
+
+
+def in_length_unit(obs: dict[str, jax.Array], scale: jax.Array | float) -> dict[str, jax.Array]:
+    """`obs` with the neighbour lengths (`names.LENGTH_FEATURES`) multiplied by `scale`."""
+    out = dict(obs)
+    for key, features in LENGTH_FEATURES.items():
+        factor = jnp.ones(obs[key].shape[-1]).at[jnp.asarray(features)].set(scale)
+        out[key] = obs[key] * factor
+    return out
+
+
+def network_inputs(obs: dict[str, jax.Array], variables: dict[str, Any]) -> dict[str, jax.Array]:
+    """What the network reads: `obs` in its length unit (`variables["length_scale"]`, if any),
+    normalised by `variables["normalizer"]`."""
+    if "length_scale" in variables:
+        obs = in_length_unit(obs, variables["length_scale"])
+    return normalize_obs(obs, variables["normalizer"])
 
 
 def init_normalizer(obs: dict[str, jax.Array]) -> dict[str, Any]:
@@ -86,13 +111,14 @@ def update_normalizer(
 def policy_apply(network: Any, deterministic: bool = False) -> Callable[..., jax.Array]:
     """`apply(variables, obs, rng) -> actions` with the learned state as an argument.
 
-    `variables` is `{"params": ..., "normalizer": ...}`. A jitted caller takes them as inputs, so
-    one compile serves every policy of the same network shape (the evaluator compiles once per
-    shape, not once per pairing).
+    `variables` is `{"params": ..., "normalizer": ...}`, and `"length_scale"` for a network with
+    a `length_unit` (`learned_policy` adds it for the scene played). A jitted caller takes them
+    as inputs, so one compile serves every policy of the same network shape (the evaluator
+    compiles once per shape, not once per pairing).
     """
 
     def apply(variables: dict[str, Any], obs: dict[str, jax.Array], rng: jax.Array) -> jax.Array:
-        logits, _ = network.apply(variables["params"], normalize_obs(obs, variables["normalizer"]))
+        logits, _ = network.apply(variables["params"], network_inputs(obs, variables))
         return greedy_actions(logits) if deterministic else sample_actions(logits, rng)
 
     return apply
@@ -106,6 +132,7 @@ def learned_policy(
     source: str = "training",
     label: str | None = None,
     deterministic: bool = False,
+    env_config: EnvConfig | None = None,
     **fields: Any,
 ) -> Policy:
     """The `Policy` of a network with its variables ({"params", "normalizer"}).
@@ -113,9 +140,16 @@ def learned_policy(
     Args:
       source: where it came from (a run directory; "training" for the trainer's current state).
       label: the paper's label; by default "P_MIX" etc.
+      env_config: the scene it plays; needed for a network with a `length_unit` (whose inputs
+        depend on the arena radius).
       fields: further `Policy` fields (`shape_key`, `note`).
     """
     encoder = network_config.encoder
+    if network_config.length_unit is not None:
+        if env_config is None:
+            raise ValueError("a policy with a length_unit needs the env config of its scene")
+        scale = length_scale(network_config, env_config)
+        variables = {**variables, "length_scale": jnp.asarray(scale, jnp.float32)}
     return Policy(
         team=team,
         source=source,
@@ -141,7 +175,7 @@ def attention_policy_apply(
     heads, float [A, M]; actions int32 [A]."""
 
     def apply(variables: dict[str, Any], obs: dict[str, jax.Array], rng: jax.Array):
-        inputs = normalize_obs(obs, variables["normalizer"])
+        inputs = network_inputs(obs, variables)
         (logits, _), inter = network.apply(variables["params"], inputs, mutable=["intermediates"])
         weights = inter["intermediates"]["encoder"]["attention"][0]  # [A, H, M]
         actions = greedy_actions(logits) if deterministic else sample_actions(logits, rng)

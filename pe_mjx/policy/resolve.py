@@ -29,8 +29,9 @@ def resolve_policy(
     Args:
       spec: "scripted", "random", a run directory or a shipped policy's name.
       team: "pursuer" or "evader".
-      env_config: the scene it will play; a run's action count must match it. None: a run
-        plays the scene it was trained in (builtin policies need a scene).
+      env_config: the scene it will play; a run's action count must match it, and a network
+        with a `length_unit` reads lengths for its arena radius. None: a run plays the scene it
+        was trained in (builtin policies need a scene).
       deterministic: greedy actions instead of sampling (learned policies).
 
     Raises:
@@ -52,6 +53,8 @@ def resolve_policy(
     method = net_config.encoder.upper()
     if net_config.nearest_k is not None:  # local attention: the k nearest of each type
         method += f"-k{net_config.nearest_k}"
+    if net_config.length_unit is not None:  # neighbour lengths in metres
+        method += f"-{net_config.length_unit:g}m"
     label = f"{team_letter(team)}_{method}({counts[0]},{counts[1]},{counts[2]})"
     note = ""
     if net_config.encoder == "mlp" and here != counts:
@@ -68,6 +71,7 @@ def resolve_policy(
         source=str(spec),
         label=label,
         deterministic=deterministic,
+        env_config=env_config,
         shape_key=f"net:{num_actions}:{deterministic}:{json.dumps(net, sort_keys=True)}",
         note=note,
     )
@@ -87,7 +91,9 @@ def load_policy(
         `env_config`.
       team: "pursuer" or "evader".
       deterministic: greedy actions instead of sampling.
-      env_config: if given, checked for compatibility (the team's action count).
+      env_config: the scene it will play, if given: checked for compatibility (the team's
+        action count), and its arena radius is what a policy with a `length_unit` converts
+        neighbour lengths with (default: the scene it was trained in).
 
     Returns:
       The team's `Policy`: jittable `policy(obs, rng) -> int32 [...]`, obs being that team's

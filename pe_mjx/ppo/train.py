@@ -41,8 +41,10 @@ from pe_mjx.names import TEAMS, other_team
 from pe_mjx.networks import log_prob, make_network, sample_actions
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.inference import (
+    in_length_unit,
     init_normalizer,
     learned_policy,
+    length_scale,
     normalize_obs,
     update_normalizer,
 )
@@ -225,7 +227,7 @@ class Trainer:
             if team in self.learned:
                 ts = teams[team]
                 logits, value = self.networks[team].apply(
-                    ts.params, normalize_obs(team_obs, ts.normalizer)
+                    ts.params, normalize_obs(self._inputs(team, team_obs), ts.normalizer)
                 )
                 action = sample_actions(logits, keys[team])
                 extras[team] = {"log_prob": log_prob(logits, action), "value": value}
@@ -234,6 +236,12 @@ class Trainer:
                 action = jax.vmap(self.fixed[team])(team_obs, jax.random.split(keys[team], batch))
             actions[team] = action.astype(jnp.int32)
         return actions, extras
+
+    def _inputs(self, team: str, obs: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """A learned team's observations in its network's length unit (statistics and updates
+        see them so; `NetworkConfig.length_unit`)."""
+        scale = length_scale(self.network_configs[team], self.env_config)
+        return obs if scale is None else in_length_unit(obs, scale)
 
     def _rollout(self, ts: TrainState, rng: jax.Array) -> tuple[State, dict[str, Any]]:
         def step(env_state: State, key: jax.Array):
@@ -246,7 +254,7 @@ class Trainer:
                 valid = next_state.info["valid"][team]
                 active_after = next_state.info["active"][team]
                 data[team] = {
-                    "obs": env_state.obs[team],
+                    "obs": self._inputs(team, env_state.obs[team]),
                     "action": actions[team],
                     "log_prob": extras[team]["log_prob"],
                     "value": extras[team]["value"],
@@ -334,7 +342,7 @@ class Trainer:
             normalizer = update_normalizer(team_ts.normalizer, team_data["obs"], team_data["valid"])
             team_ts = team_ts.replace(normalizer=normalizer)
             _, bootstrap = self.networks[team].apply(
-                team_ts.params, normalize_obs(env_state.obs[team], normalizer)
+                team_ts.params, normalize_obs(self._inputs(team, env_state.obs[team]), normalizer)
             )
             batch = self._team_batch(team, team_ts, team_data, bootstrap)
             team_ts, losses = self._update_team(
@@ -376,7 +384,11 @@ class Trainer:
             team_ts = ts.teams[team]
             variables = {"params": team_ts.params, "normalizer": team_ts.normalizer}
             out[team] = learned_policy(
-                team, self.networks[team], self.network_configs[team], variables
+                team,
+                self.networks[team],
+                self.network_configs[team],
+                variables,
+                env_config=self.env_config,
             )
         return out
 

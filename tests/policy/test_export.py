@@ -22,6 +22,7 @@ from pe_mjx.config import get_preset
 from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.policy.deploy import Controller
 from pe_mjx.policy.export_loader import load
+from tests.tool_modules import load_tool
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN = ROOT / "assets" / "policies" / "mix-20-5-8"
@@ -105,6 +106,27 @@ def test_exported_policy_equals_live_policy(exported, tmp_path):
     for i, (actions, logits) in enumerate(zip(want_actions, want_logits, strict=True)):
         np.testing.assert_array_equal(out[f"{i}/actions"], actions)
         np.testing.assert_allclose(out[f"{i}/logits"], logits, rtol=0, atol=LOGIT_TOL)
+
+
+def test_a_length_unit_is_exported_for_the_scene_it_fixes(tmp_path):
+    """The shipped pursuers reading neighbour lengths in units of 5 m (`ship_policy.py
+    --length-unit 5`), exported for 4-2-2 (a 3 m arena): the file acts as the live policy
+    resolved for that scene, not as the same parameters reading arena radii."""
+    tool = load_tool("ship_policy")
+    metric = tool.ship(tool.Args(RUN, "m5", dest=tmp_path, length_unit=5.0))
+    path = tmp_path / "m5.jaxexport"
+    with contextlib.redirect_stdout(io.StringIO()):
+        cli.main(["export", str(metric), "-o", str(path), "--preset", ROBOTS])
+    scene = get_preset(ROBOTS)
+    live = pe_mjx.load_policy(metric, "pursuer", deterministic=True, env_config=scene)
+    radii = pe_mjx.load_policy(RUN, "pursuer", deterministic=True, env_config=scene)
+    policy, key = load(path), jax.random.key(0)
+    differs = False
+    for obs in _observations(8):
+        got, _ = policy.apply(obs)
+        np.testing.assert_array_equal(got, live(obs, key))
+        differs |= not np.array_equal(got, radii(obs, key))
+    assert differs
 
 
 def _live_logits(run: Path):

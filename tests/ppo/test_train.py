@@ -99,6 +99,24 @@ def test_a_critic_warmup_moves_only_the_value_head_until_it_ends():
     assert all(second.values()), second
 
 
+def test_a_length_unit_is_what_the_learner_stores_and_its_policy_reads():
+    """`network.length_unit`: the observations a rollout stores (which the statistics and the
+    updates see) have the neighbour lengths in that unit, every other feature as the env gave
+    it; the trainer's policy carries the same factor (4-1-2: radius 2.5 m, unit 1.25 m)."""
+    trainer = Trainer(tiny(**{"evader.policy": "scripted", "pursuer.network.length_unit": 1.25}))
+    state = trainer.init()
+    _, data = jax.jit(trainer._rollout)(state, jax.random.key(1))
+    env_obs, stored = state.env_state.obs["pursuer"], jax.tree.map(lambda x: x[0], data["pursuer"])
+    stored = stored["obs"]
+    lengths = {"teammates": [1], "opponents": [1], "obstacles": [0, 3]}
+    for key in ("own", "teammates", "opponents", "obstacles"):
+        want = np.array(env_obs[key])
+        want[..., lengths.get(key, [])] *= 2.0
+        np.testing.assert_allclose(stored[key], want, rtol=1e-6, err_msg=key)
+    policy = trainer.policies(state)["pursuer"]
+    assert float(policy.variables["length_scale"]) == 2.0
+
+
 def test_pursuers_learn_to_capture_the_scripted_evader():
     """Pursuers trained briefly capture clearly more often than the untrained policy.
 
