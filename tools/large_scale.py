@@ -66,6 +66,11 @@ ABLATION = (
 )
 """(policy, k) pairs of the ablation at the largest scene: k for MIX, and MEAN's pooling and
 BIRNN's recurrence made local with the same k as the shipped MIX."""
+METRES = (FULL, 4, 5.0)
+"""LOCAL reading the distances to its neighbours in units of 5 m, 20-5-8's arena radius, in
+every arena (`NetworkConfig.length_unit`; tools/ship_policy.py --nearest-k 4 --length-unit 5):
+the same play as LOCAL at 20-5-8, and a neighbourhood of the same density read the same way at
+every other scale. No training."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,6 +108,18 @@ def play(args: Args) -> dict:
             name = f"{source}-k{k}"
             ship(ShipArgs(ROOT / "assets" / "policies" / source, name, dest=Path(tmp), nearest_k=k))
             variants[str(Path(tmp) / name)] = name
+        source, k, unit = METRES
+        metres = f"{source}-k{k}-{unit:g}m"
+        ship(
+            ShipArgs(
+                ROOT / "assets" / "policies" / source,
+                metres,
+                dest=Path(tmp),
+                nearest_k=k,
+                length_unit=unit,
+            )
+        )
+        variants[str(Path(tmp) / metres)] = metres
         for name in args.scenes:
             env_config = scene(name)
             trials = 100 if name == "20-5-8" else args.trials
@@ -111,8 +128,10 @@ def play(args: Args) -> dict:
             }
             for part, tuned in TUNED_EVADERS.items():
                 parts[part] = ([LOCAL, "scripted"], [tuned])
+            every_evader = [LOCAL, FULL, "scripted", *TUNED_EVADERS.values()]
+            parts["metres"] = ([str(Path(tmp) / metres)], every_evader)
             for part, tuned in TUNED_PURSUERS.items():
-                parts[part] = ([tuned], [LOCAL, FULL, "scripted", *TUNED_EVADERS.values()])
+                parts[part] = ([tuned], every_evader)
             if name == args.scenes[-1]:
                 # Full attention at 240-60-120 takes about 95 s per trial on 2 CPU cores: its
                 # row is docs/data/transfer-240-60-120-3m (5 trials), quoted beside these.
