@@ -12,7 +12,10 @@ same policy fine-tuned at 60-15-30 (`e-mix-k4-ft-60-15-30`) and then at 240-60-1
 (`e-mix-k4-ft-240-60-120`) against the local and the scripted pursuers; and in every scene the
 pursuers fine-tuned at 240-60-120 against that evader (`p-mix-k4-ft-240-60-120`), and those
 fine-tuned again at 20-5-8 (train/unfinished/p-mix-k4-ft8-20-5-8), against every evader above;
-and at 240-60-120, k = 1 and 2 against the evader fine-tuned there.
+and at 240-60-120, k = 1 and 2 against the evader fine-tuned there; and in every scene, against
+every evader above, the local pursuers reading the distances to their neighbours in units of
+5 m (`NetworkConfig.length_unit`, no training) and those fine-tuned at 240-60-120
+(`p-mix-k4-5m-ft-240-60-120`).
 Each (scene, part) is one `pe-mjx evaluate` report under OUT/<scene>/<part>/; OUT/summary.json
 and OUT/summary.md gather the headline numbers that docs/results.md quotes. A part whose
 results.json exists is kept (delete it to play it again), so an interrupted run continues where
@@ -51,11 +54,13 @@ cards in assets/policies/README.md): at 60-15-30, then that one again at 240-60-
 TUNED_PURSUERS = {
     "tuned-pursuer": "p-mix-k4-ft-240-60-120",
     "tuned-pursuer-then-20-5-8": str(ROOT / "train" / "unfinished" / "p-mix-k4-ft8-20-5-8"),
+    "tuned-pursuer-5m": "p-mix-k4-5m-ft-240-60-120",
 }
 """Part -> LOCAL's pursuers fine-tuned at 240-60-120 against the frozen `e-mix-k4-ft-240-60-120`
 with the pursuit shaping summed over the 4 nearest evaders (`reward.pursuit_nearest = 4`); and
 those fine-tuned again, at 20-5-8 against the frozen full-attention E_MIX (a run directory: its
-last checkpoint)."""
+last checkpoint); and METRES's pursuers (neighbour distances in units of 5 m) fine-tuned at
+240-60-120 the same way as the first."""
 ABLATION = (
     (FULL, 1),
     (FULL, 2),
