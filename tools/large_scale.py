@@ -15,7 +15,9 @@ fine-tuned again at 20-5-8 (train/unfinished/p-mix-k4-ft8-20-5-8), against every
 and at 240-60-120, k = 1 and 2 against the evader fine-tuned there; and in every scene, against
 every evader above, the local pursuers reading the distances to their neighbours in units of
 5 m (`NetworkConfig.length_unit`, no training) and those fine-tuned at 240-60-120
-(`p-mix-k4-5m-ft-240-60-120`).
+(`p-mix-k4-5m-ft-240-60-120`); and at 240-60-120, every pursuer fine-tuned there, the local and
+the scripted pursuers against the evader fine-tuned in turn against the last
+(train/unfinished/e-mix-k4-ft2-240-60-120).
 Each (scene, part) is one `pe-mjx evaluate` report under OUT/<scene>/<part>/; OUT/summary.json
 and OUT/summary.md gather the headline numbers that docs/results.md quotes. A part whose
 results.json exists is kept (delete it to play it again), so an interrupted run continues where
@@ -71,6 +73,9 @@ ABLATION = (
 )
 """(policy, k) pairs of the ablation at the largest scene: k for MIX, and MEAN's pooling and
 BIRNN's recurrence made local with the same k as the shipped MIX."""
+NEXT_EVADER = str(ROOT / "train" / "unfinished" / "e-mix-k4-ft2-240-60-120")
+"""`e-mix-k4-ft-240-60-120` fine-tuned once more at 240-60-120, against the frozen
+`p-mix-k4-5m-ft-240-60-120` (a run directory: its last checkpoint); played there only."""
 METRES = (FULL, 4, 5.0)
 """LOCAL reading the distances to its neighbours in units of 5 m, 20-5-8's arena radius, in
 every arena (`NetworkConfig.length_unit`; tools/ship_policy.py --nearest-k 4 --length-unit 5):
@@ -145,6 +150,10 @@ def play(args: Args) -> dict:
                 # Smaller k against the evader fine-tuned against k = 4 (same parameters).
                 small_k = [p for p in mix_k if variants[p] in (f"{FULL}-k1", f"{FULL}-k2")]
                 parts["ablation-vs-tuned-evader"] = (small_k, [TUNED_EVADERS["tuned-evader-240"]])
+                parts["next-evader"] = (
+                    [*TUNED_PURSUERS.values(), LOCAL, "scripted"],
+                    [NEXT_EVADER],
+                )
                 for path, variant in variants.items():  # one part per other encoder
                     if path not in mix_k:
                         parts[f"ablation-{variant.split('-')[0]}"] = ([path], ["scripted"])
