@@ -19,7 +19,8 @@ every evader above, the local pursuers reading the distances to their neighbours
 the scripted pursuers against the evader fine-tuned in turn against the last
 (train/unfinished/e-mix-k4-ft2-240-60-120).
 Each (scene, part) is one `pe-mjx evaluate` report under OUT/<scene>/<part>/; OUT/summary.json
-and OUT/summary.md gather the headline numbers that docs/results.md quotes. A part whose
+and OUT/summary.md gather the headline numbers that docs/results.md quotes: those of every scene
+with reports under OUT, whichever `--scenes` played. A part whose
 results.json exists is kept (delete it to play it again), so an interrupted run continues where
 it stopped.
 
@@ -113,11 +114,11 @@ def scene(name: str) -> EnvConfig:
 def play(args: Args) -> dict:
     summary: dict = {"trials": {}, "scenes": {}}
     with tempfile.TemporaryDirectory() as tmp:
-        variants = {}  # path of the local copy -> its name
+        ablation = {}  # path of the local copy -> its name
         for source, k in ABLATION:
             name = f"{source}-k{k}"
             ship(ShipArgs(ROOT / "assets" / "policies" / source, name, dest=Path(tmp), nearest_k=k))
-            variants[str(Path(tmp) / name)] = name
+            ablation[str(Path(tmp) / name)] = name
         source, k, unit = METRES
         metres = f"{source}-k{k}-{unit:g}m"
         ship(
@@ -129,8 +130,10 @@ def play(args: Args) -> dict:
                 length_unit=unit,
             )
         )
-        variants[str(Path(tmp) / metres)] = metres
-        for name in args.scenes:
+        variants = {**ablation, str(Path(tmp) / metres): metres}
+        # Every scene with reports is summarised; only those of --scenes are played.
+        scenes = list(dict.fromkeys([*Args.scenes, *args.scenes]))
+        for name in scenes:
             env_config = scene(name)
             trials = 100 if name == "20-5-8" else args.trials
             parts = {
@@ -142,10 +145,10 @@ def play(args: Args) -> dict:
             parts["metres"] = ([str(Path(tmp) / metres)], every_evader)
             for part, tuned in TUNED_PURSUERS.items():
                 parts[part] = ([tuned], every_evader)
-            if name == args.scenes[-1]:
+            if name == scenes[-1]:
                 # Full attention at 240-60-120 takes about 95 s per trial on 2 CPU cores: its
                 # row is docs/data/transfer-240-60-120-3m (5 trials), quoted beside these.
-                mix_k = [p for p, n in variants.items() if n.startswith(FULL)]
+                mix_k = [p for p, n in ablation.items() if n.startswith(FULL)]
                 parts["ablation"] = (mix_k, ["scripted"])
                 # Smaller k against the evader fine-tuned against k = 4 (same parameters).
                 small_k = [p for p in mix_k if variants[p] in (f"{FULL}-k1", f"{FULL}-k2")]
@@ -154,13 +157,14 @@ def play(args: Args) -> dict:
                     [*TUNED_PURSUERS.values(), LOCAL, "scripted"],
                     [NEXT_EVADER],
                 )
-                for path, variant in variants.items():  # one part per other encoder
+                for path, variant in ablation.items():  # one part per other encoder
                     if path not in mix_k:
                         parts[f"ablation-{variant.split('-')[0]}"] = ([path], ["scripted"])
-            summary["trials"][name] = trials
             for part, (pursuers, evaders) in parts.items():
                 out = args.out / name / part
                 if not (out / "results.json").is_file():
+                    if name not in args.scenes:
+                        continue
                     evaluate(
                         pursuers,
                         evaders,
@@ -171,6 +175,7 @@ def play(args: Args) -> dict:
                         record=0,
                     )
                 data = json.loads((out / "results.json").read_text())
+                summary["trials"][name] = trials
                 for pairing in data["pairings"]:
                     key = f"{_spec_name(pairing['pursuer']['source'], variants)} vs "
                     key += _spec_name(pairing["evader"]["source"], variants)
