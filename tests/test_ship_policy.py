@@ -47,7 +47,7 @@ def test_nearest_k_is_written_everywhere_and_the_source_recorded(derived):
 
 def test_a_bad_k_is_one_clear_error(tmp_path):
     tool = _tool()
-    with pytest.raises(SystemExit, match="--nearest-k must be >= 1"):
+    with pytest.raises(SystemExit, match="--nearest-k must be None or >= 1, got 0"):
         tool.ship(tool.Args(FULL, "k0", dest=tmp_path, nearest_k=0))
 
 
@@ -72,7 +72,8 @@ def test_local_attention_changes_what_is_read_not_the_parameters(derived, team):
 
 def test_a_bad_length_unit_is_one_clear_error(tmp_path):
     tool = _tool()
-    with pytest.raises(SystemExit, match="--length-unit must be a positive number"):
+    message = "--length-unit must be None or a positive number of metres"
+    with pytest.raises(SystemExit, match=message):
         tool.ship(tool.Args(FULL, "m0", dest=tmp_path, length_unit=-5.0))
     assert not (tmp_path / "m0").exists()
 

@@ -114,23 +114,21 @@ def scene(name: str) -> EnvConfig:
 def play(args: Args) -> dict:
     summary: dict = {"trials": {}, "scenes": {}}
     with tempfile.TemporaryDirectory() as tmp:
-        ablation = {}  # path of the local copy -> its name
-        for source, k in ABLATION:
-            name = f"{source}-k{k}"
-            ship(ShipArgs(ROOT / "assets" / "policies" / source, name, dest=Path(tmp), nearest_k=k))
-            ablation[str(Path(tmp) / name)] = name
-        source, k, unit = METRES
-        metres = f"{source}-k{k}-{unit:g}m"
-        ship(
-            ShipArgs(
-                ROOT / "assets" / "policies" / source,
-                metres,
-                dest=Path(tmp),
-                nearest_k=k,
-                length_unit=unit,
+        variants = {}  # path of the local copy -> its name
+        for source, k, unit in [*((source, k, None) for source, k in ABLATION), METRES]:
+            name = f"{source}-k{k}" + ("" if unit is None else f"-{unit:g}m")
+            ship(
+                ShipArgs(
+                    ROOT / "assets" / "policies" / source,
+                    name,
+                    dest=Path(tmp),
+                    nearest_k=k,
+                    length_unit=unit,
+                )
             )
-        )
-        variants = {**ablation, str(Path(tmp) / metres): metres}
+            variants[str(Path(tmp) / name)] = name
+        *ablation_paths, metres = variants  # METRES last
+        ablation = {p: variants[p] for p in ablation_paths}
         # Every scene with reports is summarised; only those of --scenes are played.
         scenes = list(dict.fromkeys([*Args.scenes, *args.scenes]))
         for name in scenes:
@@ -142,7 +140,7 @@ def play(args: Args) -> dict:
             for part, tuned in TUNED_EVADERS.items():
                 parts[part] = ([LOCAL, "scripted"], [tuned])
             every_evader = [LOCAL, FULL, "scripted", *TUNED_EVADERS.values()]
-            parts["metres"] = ([str(Path(tmp) / metres)], every_evader)
+            parts["metres"] = ([metres], every_evader)
             for part, tuned in TUNED_PURSUERS.items():
                 parts[part] = ([tuned], every_evader)
             if name == scenes[-1]:

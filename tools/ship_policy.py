@@ -39,6 +39,7 @@ from pathlib import Path
 
 import tyro
 
+from pe_mjx.experiment import NetworkConfig
 from pe_mjx.policy import store
 from pe_mjx.policy.shipped import policies_dir
 
@@ -99,13 +100,12 @@ def ship(args: Args) -> Path:
 
 
 def _check_changes(changes: dict) -> None:
-    if changes.get("nearest_k", 1) < 1:
-        raise SystemExit(
-            f"ship_policy: error: --nearest-k must be >= 1, got {changes['nearest_k']}"
-        )
-    unit = changes.get("length_unit", 1.0)
-    if not 0 < unit < float("inf"):
-        raise SystemExit(f"ship_policy: error: --length-unit must be a positive number, got {unit}")
+    """`NetworkConfig`'s own checks of the changed fields, as one line naming the flag."""
+    try:
+        NetworkConfig(**changes)
+    except ValueError as err:
+        field, _, problem = str(err).removeprefix("invalid config: ").partition(" ")
+        raise SystemExit(f"ship_policy: error: --{field.replace('_', '-')} {problem}") from None
 
 
 def _set_network(tree: dict, changes: dict) -> dict:

@@ -219,7 +219,8 @@ class Trainer:
     def _act(
         self, teams: dict[str, TeamState], obs: dict[str, dict[str, jax.Array]], rng: jax.Array
     ) -> tuple[dict[str, jax.Array], dict[str, dict[str, jax.Array]]]:
-        """Actions for both teams on batched obs [B, A, ...]; extras for learned teams."""
+        """Actions for both teams on batched obs [B, A, ...] (a learned team's already in its
+        network's length unit: `_inputs`); extras for learned teams."""
         actions, extras = {}, {}
         keys = dict(zip(TEAMS, jax.random.split(rng, len(TEAMS)), strict=True))
         for team in TEAMS:
@@ -227,7 +228,7 @@ class Trainer:
             if team in self.learned:
                 ts = teams[team]
                 logits, value = self.networks[team].apply(
-                    ts.params, normalize_obs(self._inputs(team, team_obs), ts.normalizer)
+                    ts.params, normalize_obs(team_obs, ts.normalizer)
                 )
                 action = sample_actions(logits, keys[team])
                 extras[team] = {"log_prob": log_prob(logits, action), "value": value}
@@ -245,7 +246,10 @@ class Trainer:
 
     def _rollout(self, ts: TrainState, rng: jax.Array) -> tuple[State, dict[str, Any]]:
         def step(env_state: State, key: jax.Array):
-            actions, extras = self._act(ts.teams, env_state.obs, key)
+            obs = dict(env_state.obs)
+            for team in self.learned:  # once per step: acting and the stored data share it
+                obs[team] = self._inputs(team, obs[team])
+            actions, extras = self._act(ts.teams, obs, key)
             next_state = self.env.step_batch(env_state, actions)
             next_state = self._shard_batch(next_state)
             data = {}
@@ -254,7 +258,7 @@ class Trainer:
                 valid = next_state.info["valid"][team]
                 active_after = next_state.info["active"][team]
                 data[team] = {
-                    "obs": self._inputs(team, env_state.obs[team]),
+                    "obs": obs[team],
                     "action": actions[team],
                     "log_prob": extras[team]["log_prob"],
                     "value": extras[team]["value"],
