@@ -1,5 +1,5 @@
-"""Plots: learning curves from a run's TensorBoard events, and replays as a Fig. 4-style top-down
-trajectory plot or a GIF/MP4 animation (matplotlib, imageio)."""
+"""Plots: learning curves from a run's compact curves (or its TensorBoard events), and replays
+as a Fig. 4-style top-down trajectory plot or a GIF/MP4 animation (matplotlib, imageio)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_mjx.ppo import curves
+from pe_mjx.ppo.curves import CURVES_FILE
 from pe_mjx.trajectory import Trajectory
 
 CURVES = {
@@ -25,11 +27,27 @@ RETURNS = {
 
 
 def read_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
-    """tag -> [(env_steps, value)] from every event file under `run_dir/tb` (TFRecord framing).
+    """tag -> [(env_steps, value)] of a run: from its compact curves (`curves.csv.gz`), or, for
+    a run written before those existed, from its TensorBoard events under `run_dir/tb`.
 
-    A record cut by a kill ends the file's reading; iterations in which no arena finished carry
-    no episode statistics and are dropped from the `episode/*` curves.
+    Iterations in which no arena finished carry no episode statistics and are dropped from the
+    `episode/*` curves.
+
+    Raises:
+      CurvesError: the curves file is damaged (one line naming it).
     """
+    path = Path(run_dir) / CURVES_FILE
+    out = curves.scalars(curves.read_rows(path)) if path.exists() else _tensorboard_scalars(run_dir)
+    finished = dict(out.get("episode/finished", []))
+    for tag in list(out):
+        if tag.startswith("episode/") and tag != "episode/finished":
+            out[tag] = [(s, v) for s, v in out[tag] if finished.get(s, 1) > 0]
+    return out
+
+
+def _tensorboard_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
+    """tag -> [(env_steps, value)] from every event file under `run_dir/tb` (TFRecord framing);
+    a record cut by a kill ends the file's reading."""
     from tensorboardX.proto import event_pb2
 
     scalars: dict[str, list[tuple[int, float]]] = defaultdict(list)
@@ -45,12 +63,7 @@ def read_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
             event = event_pb2.Event.FromString(record)
             for value in event.summary.value:
                 scalars[value.tag].append((event.step, value.simple_value))
-    out = {k: sorted(v) for k, v in scalars.items()}
-    finished = dict(out.get("episode/finished", []))
-    for tag in list(out):
-        if tag.startswith("episode/") and tag != "episode/finished":
-            out[tag] = [(s, v) for s, v in out[tag] if finished.get(s, 1) > 0]
-    return out
+    return {k: sorted(v) for k, v in scalars.items()}
 
 
 def learning_curves(run_dir: str | Path, out: str | Path | None = None) -> tuple[Path, str]:
@@ -69,7 +82,9 @@ def learning_curves(run_dir: str | Path, out: str | Path | None = None) -> tuple
     run_dir = Path(run_dir)
     scalars = read_scalars(run_dir)
     if not scalars:
-        raise ValueError(f"{run_dir} holds no TensorBoard events (no {run_dir / 'tb'}/events.*)")
+        raise ValueError(
+            f"{run_dir} holds no learning curves (no {CURVES_FILE}, no tb/events.* files)"
+        )
     have_returns = any(tag in scalars for tag in RETURNS)
     fig, axes = plt.subplots(1, 2 if have_returns else 1, figsize=(12 if have_returns else 7, 4))
     axes = np.atleast_1d(axes)

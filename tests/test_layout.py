@@ -62,6 +62,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "ppo.distributed",
         "ppo.train",
         "ppo.checkpoint",
+        "ppo.curves",
         "ppo.run",
     ),
     "apps": (

@@ -1,4 +1,5 @@
-"""The loop around the jitted training iteration: progress, TensorBoard, evaluation, checkpoints."""
+"""The loop around the jitted training iteration: progress, TensorBoard and the compact curves
+(`curves.csv.gz`), evaluation, checkpoints."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from pe_mjx.policy import store
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
 from pe_mjx.ppo import checkpoint
+from pe_mjx.ppo.curves import CurveLog
 from pe_mjx.ppo.distributed import barrier, is_primary, lost_process_guard
 from pe_mjx.ppo.train import Trainer, TrainState
 
@@ -327,6 +329,7 @@ def _train(
     )
     evaluate_fn = None  # compiled at the first evaluation
     writer = SummaryWriter(str(run_dir / "tb")) if primary else _NoWriter()
+    curves = CurveLog(run_dir, int(state.env_steps) if resume else None) if primary else None
     wandb_run = _start_wandb(wandb_project, run_dir, config) if wandb_project and primary else None
     start = int(state.iteration)
     total = config.num_iterations
@@ -346,7 +349,7 @@ def _train(
     # `perf/eval_share`: the fraction of the run's time spent in the in-training evaluation.
     spent = {"train": 0.0, "eval": 0.0}
     # The loggers are closed also on Ctrl-C, so that the scalars logged so far reach the disk.
-    with _closing(writer, wandb_run), Progress(*columns, disable=not progress) as bar:
+    with _closing(writer, wandb_run, curves), Progress(*columns, disable=not progress) as bar:
         task = bar.add_task(
             config.preset,
             total=total * config.steps_per_iteration,
@@ -416,6 +419,8 @@ def _train(
             for k, v in host.items():
                 if np.isfinite(v):
                     writer.add_scalar(k, v, env_steps)
+            if curves is not None:
+                curves.add(env_steps, host)
             if wandb_run is not None:
                 wandb_run.log({k: v for k, v in host.items() if np.isfinite(v)}, step=env_steps)
             success = latest_eval.get("eval/pursuer_vs_scripted/success_rate")
@@ -428,6 +433,8 @@ def _train(
             if on_iteration is not None:
                 on_iteration(snapshot(trainer, state, host))
             if done_iters % config.checkpoint_every == 0 or done_iters == end:
+                if curves is not None:  # first: the curves never lag their checkpoint
+                    curves.flush()
                 last_saved = checkpoint.save(run_dir, trainer, state)
     return trainer, state
 
@@ -454,12 +461,15 @@ class _NoWriter:
 
 
 @contextlib.contextmanager
-def _closing(writer: Any, wandb_run: Any) -> Iterator[None]:
-    """Closes the TensorBoard writer and the W&B run however the block ends."""
+def _closing(writer: Any, wandb_run: Any, curves: CurveLog | None) -> Iterator[None]:
+    """Closes the TensorBoard writer and the W&B run, and writes the curves, however the block
+    ends."""
     try:
         yield
     finally:
         writer.close()
+        if curves is not None:
+            curves.flush()
         if wandb_run is not None:
             wandb_run.finish()
 

@@ -1,0 +1,152 @@
+"""A run's compact learning curves: every scalar the trainer logs, one CSV row per log point.
+
+`runs/NAME/curves.csv.gz` is the record that travels with a run (committed, read by `pe-mjx plot`
+and the curve figures); `tb/` is the same data for TensorBoard on the machine that trained, and
+is never committed. Columns: `env_steps`, `wall_time` (seconds since the epoch), then one column
+per tag in sorted order; a cell is empty where the tag was not logged at that point (the
+evaluation's tags, every `eval_every` iterations). Readable as it is with
+`pandas.read_csv("curves.csv.gz")`.
+
+Gzip because a 10M-step run logs about 4,900 points of about 80 tags (1.9 MB as text, 0.7 MB
+compressed). The file is rewritten whole (a temporary beside it, then one rename) just before
+each checkpoint is saved, so it never holds fewer points than the checkpoint it belongs to; on
+resume the points beyond the restored checkpoint (logged after it, before a kill) are dropped,
+so they are logged once, as the resumed run replays them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import gzip
+import io
+import math
+import os
+import time
+from pathlib import Path
+
+CURVES_FILE = "curves.csv.gz"
+MAX_BYTES = 64 << 20
+"""Largest decompressed curves file read (a 10M-step run's is about 2 MB)."""
+MAX_COLUMNS = 10_000
+
+
+class CurvesError(ValueError):
+    """A curves file that cannot be read (damaged, too large, or not a curves file)."""
+
+
+def read_rows(path: str | Path) -> list[dict[str, float]]:
+    """The rows of a curves file, each `{"env_steps": ..., "wall_time": ..., tag: value}` with
+    the empty cells left out.
+
+    Raises:
+      CurvesError: the file is not a gzip CSV with an `env_steps` column, holds a value that is
+        not a number, or decompresses to more than `MAX_BYTES` (checked while reading).
+    """
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise CurvesError(f"{path} is not a regular file")
+        with gzip.open(path, "rb") as f:
+            data = f.read(MAX_BYTES + 1)
+    except (OSError, EOFError, gzip.BadGzipFile) as err:
+        raise CurvesError(f"{path}: not a readable gzip file ({err})") from None
+    if len(data) > MAX_BYTES:
+        raise CurvesError(f"{path}: larger than {MAX_BYTES >> 20} MB decompressed")
+    try:
+        reader = csv.reader(io.StringIO(data.decode()))
+        header = next(reader, None)
+    except (UnicodeDecodeError, csv.Error) as err:
+        raise CurvesError(f"{path}: not a CSV file ({err})") from None
+    if not header or header[0] != "env_steps" or len(header) > MAX_COLUMNS:
+        raise CurvesError(f"{path}: not a curves file (its first column must be env_steps)")
+    rows = []
+    try:
+        for line, cells in enumerate(reader, start=2):
+            if len(cells) != len(header):
+                raise CurvesError(f"{path}: line {line} has {len(cells)} cells, not {len(header)}")
+            row = {k: float(v) for k, v in zip(header, cells, strict=True) if v != ""}
+            row["env_steps"] = int(row["env_steps"])
+            rows.append(row)
+    except (ValueError, KeyError, csv.Error) as err:
+        if isinstance(err, CurvesError):
+            raise
+        raise CurvesError(f"{path}: line {line} is not a row of numbers") from None
+    return rows
+
+
+def scalars(rows: list[dict[str, float]]) -> dict[str, list[tuple[int, float]]]:
+    """tag -> [(env_steps, value)], sorted by env steps (the shape of TensorBoard's scalars)."""
+    out: dict[str, list[tuple[int, float]]] = {}
+    for row in rows:
+        step = int(row["env_steps"])
+        for tag, value in row.items():
+            if tag not in ("env_steps", "wall_time"):
+                out.setdefault(tag, []).append((step, value))
+    return {tag: sorted(points) for tag, points in out.items()}
+
+
+def write_rows(path: str | Path, rows: list[dict[str, float]]) -> None:
+    """Writes `rows` as a curves file: a temporary beside `path`, then one rename."""
+    path = Path(path)
+    tags = sorted({k for row in rows for k in row} - {"env_steps", "wall_time"})
+    header = ["env_steps", "wall_time", *tags]
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(header)
+    for row in rows:
+        writer.writerow([_cell(row.get(k), k) for k in header])
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        # mtime=0: the same rows give the same bytes (no spurious diff of a committed file).
+        with open(tmp, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as f:
+            f.write(text.getvalue().encode())
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def _cell(value: float | None, key: str) -> str:
+    if value is None or not math.isfinite(value):
+        return ""
+    if key == "env_steps":
+        return str(int(value))
+    if key == "wall_time":
+        return f"{value:.1f}"
+    return f"{value:.6g}"
+
+
+class CurveLog:
+    """The curves of one run while it trains: `add` a log point, `flush` to disk.
+
+    Args:
+      run_dir: the run directory.
+      resume_at: on resume, the env steps of the restored checkpoint: the existing file's points
+        up to it are kept (a damaged or absent file starts empty). None: a fresh run, whose file
+        starts empty.
+    """
+
+    def __init__(self, run_dir: str | Path, resume_at: int | None) -> None:
+        self.path = Path(run_dir) / CURVES_FILE
+        self.rows: list[dict[str, float]] = []
+        if resume_at is not None and self.path.is_file():
+            try:
+                self.rows = [r for r in read_rows(self.path) if r["env_steps"] <= resume_at]
+            except CurvesError:
+                self.rows = []
+        self._dirty = True
+
+    def add(self, env_steps: int, values: dict[str, float]) -> None:
+        row = {k: float(v) for k, v in values.items() if math.isfinite(v)}
+        row.update(env_steps=int(env_steps), wall_time=time.time())
+        self.rows.append(row)
+        self._dirty = True
+
+    def flush(self) -> None:
+        if self._dirty:
+            write_rows(self.path, self.rows)
+            self._dirty = False
+
+
+__all__ = ["CURVES_FILE", "CurveLog", "CurvesError", "read_rows", "scalars", "write_rows"]

@@ -1,0 +1,65 @@
+"""The compact curves file: what the trainer logs, readable back, bounded, resumable."""
+
+from __future__ import annotations
+
+import gzip
+
+import pytest
+
+from pe_mjx.ppo.curves import CURVES_FILE, CurveLog, CurvesError, read_rows, scalars
+
+
+def test_rows_round_trip_with_gaps_and_non_finite_values(tmp_path):
+    log = CurveLog(tmp_path, resume_at=None)
+    log.add(100, {"loss/a": 1.5, "loss/b": float("nan")})
+    log.add(200, {"loss/a": 2.25, "eval/x": 0.5, "loss/b": float("inf")})
+    log.flush()
+    rows = read_rows(tmp_path / CURVES_FILE)
+    assert [r["env_steps"] for r in rows] == [100, 200]
+    assert scalars(rows) == {"loss/a": [(100, 1.5), (200, 2.25)], "eval/x": [(200, 0.5)]}
+    with gzip.open(tmp_path / CURVES_FILE, "rt") as f:
+        header = f.readline().strip().split(",")
+    assert header == ["env_steps", "wall_time", "eval/x", "loss/a"]
+
+
+def test_resume_drops_the_points_logged_after_the_checkpoint(tmp_path):
+    log = CurveLog(tmp_path, resume_at=None)
+    for step in (100, 200, 300):
+        log.add(step, {"v": step / 100})
+    log.flush()
+    resumed = CurveLog(tmp_path, resume_at=200)  # the checkpoint was at 200 env steps
+    resumed.add(300, {"v": 30.0})
+    resumed.flush()
+    assert scalars(read_rows(tmp_path / CURVES_FILE))["v"] == [(100, 1.0), (200, 2.0), (300, 30.0)]
+    fresh = CurveLog(tmp_path, resume_at=None)  # a fresh run in the same directory starts empty
+    fresh.add(50, {"v": 0.0})
+    fresh.flush()
+    assert scalars(read_rows(tmp_path / CURVES_FILE))["v"] == [(50, 0.0)]
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"not gzip at all",
+        gzip.compress(b"step,value\n1,2\n"),
+        gzip.compress(b"env_steps,wall_time,v\n1,2\n"),
+        gzip.compress(b"env_steps,wall_time,v\n1,2,abc\n"),
+        gzip.compress(b"env_steps,wall_time,v\n1,2,3\n")[:-6],
+    ],
+)
+def test_damaged_files_are_one_clear_error(tmp_path, content):
+    path = tmp_path / CURVES_FILE
+    path.write_bytes(content)
+    with pytest.raises(CurvesError, match=CURVES_FILE):
+        read_rows(path)
+
+
+def test_a_decompression_bomb_is_refused_before_it_is_read_whole(tmp_path, monkeypatch):
+    from pe_mjx.ppo import curves
+
+    monkeypatch.setattr(curves, "MAX_BYTES", 1000)
+    path = tmp_path / CURVES_FILE
+    path.write_bytes(gzip.compress(b"env_steps,v\n" + b"1,2\n" * 10_000))
+    assert path.stat().st_size < 1000
+    with pytest.raises(CurvesError, match="larger than"):
+        read_rows(path)
