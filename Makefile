@@ -13,8 +13,9 @@ $(BIN)/pe-mjx: pyproject.toml
 
 venv: $(BIN)/pe-mjx
 
+# The live viewer with the shipped learned teams (MIX pursuers and evaders, 3M env steps).
 demo: venv
-	$(BIN)/pe-mjx view --backend kinematic --arenas 4
+	$(BIN)/pe-mjx view --backend kinematic --arenas 4 --pursuers mix-20-5-8-3m --evaders mix-20-5-8-3m
 
 # Two pytest workers, one test file each at a time (module fixtures stay in one process): most
 # of the suite compiles (one core each) or waits on subprocesses, so two halve its wall time.
