@@ -1,7 +1,22 @@
 """pe-mjx: large-scale multi-agent pursuit-evasion under collision avoidance in MuJoCo MJX."""
 
-from pe_mjx import _quiet  # noqa: F401  (first: silences mjx's import-time print)
-from pe_mjx.config import PRESETS, ArenaConfig, EnvConfig, RewardConfig, TeamConfig, get_preset
+import sys as _sys
+
+from pe_mjx import interrupts as _interrupts
+
+if _sys.argv and _interrupts.invoked_as_cli(_sys.argv[0]):
+    # The `pe-mjx` script: a Ctrl-C during the imports below (seconds long) is one line too.
+    _interrupts.install_for_cli()
+
+from pe_mjx import _quiet  # noqa: F401  (first heavy import: silences mjx's print)
+from pe_mjx.config import (
+    PRESETS,
+    ArenaConfig,
+    EnvConfig,
+    RewardConfig,
+    TeamConfig,
+    get_preset,
+)
 from pe_mjx.env import AutoResetWrapper, PursuitEvasionEnv, State, World, make
 
 __all__ = [

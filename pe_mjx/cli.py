@@ -1,55 +1,45 @@
-"""The `pe-mjx` command line: one entry point, one subcommand per job (typed configs via tyro)."""
+"""The `pe-mjx` command line: one entry point, one subcommand per job (typed configs via tyro).
+
+This module parses, dispatches and keeps the error contract (every failure one line `pe-mjx:
+error: ...`, exit code 2); train and evaluate live here because their flags' defaults come from
+--preset, --config and --resume, read before the parse (each once: a resumed run's saved config
+travels in `TrainArgs.saved`). The other subcommands are modules of `pe_mjx.commands`. What a
+config can check itself (ranges, choices) it checks in its own `__post_init__`; its `invalid
+config: <field> ...` becomes `--<field> ...` here (`_one_line`).
+"""
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
 import io
-import os
 import re
 import sys
-import tempfile
-import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import tyro
 
-from pe_mjx import interrupts
+from pe_mjx import interrupts, outputs, sizes
+from pe_mjx.commands.common import check_backend as _check_backend
+from pe_mjx.commands.common import check_new_file
+from pe_mjx.commands.common import check_preset as _check_preset
+from pe_mjx.commands.common import check_seed as _check_seed
+from pe_mjx.commands.common import check_writable_dir as _check_writable_dir
+from pe_mjx.commands.common import fail as _fail
+from pe_mjx.commands.export import ExportArgs, run_export
+from pe_mjx.commands.plot import PlotArgs, run_plot
+from pe_mjx.commands.ship import ShipArgs, run_ship
+from pe_mjx.commands.train_summary import training_summary
+from pe_mjx.commands.view import ViewArgs, run_view
 from pe_mjx.config import PRESETS, EnvConfig, PresetName
+from pe_mjx.eval_config import EvalConfig
 from pe_mjx.experiment import Backend, ExperimentConfig
-from pe_mjx.names import BACKENDS, BUILTIN_POLICIES
-from pe_mjx.ppo.distributed import DEFAULT_HEARTBEAT_TIMEOUT_S
+from pe_mjx.names import BUILTIN_POLICIES
+from pe_mjx.ppo.distributed import DEFAULT_HEARTBEAT_TIMEOUT_S, DEFAULT_JOIN_TIMEOUT_S
 from pe_mjx.ppo.distributed import FLAGS as GROUP_SETTINGS
 from pe_mjx.reproduce import ReproduceArgs
-from pe_mjx.viewer.options import ViewerOptions
-
-
-def _fail(message: str) -> None:
-    print(f"pe-mjx: error: {message}", file=sys.stderr)
-    raise SystemExit(2)
-
-
-def _check_preset(name: str) -> None:
-    if name not in PRESETS:
-        _fail(f"--preset: unknown preset {name!r}; known presets: {', '.join(PRESETS)}")
-
-
-SEED_LIMIT = 2**32
-"""Seeds are in [0, 2**32) (`jax.random.key` keeps 32 bits; larger ones overflowed)."""
-MAX_TRIALS = 100_000
-"""Episodes per pairing at most (one vmapped batch: more would exhaust memory)."""
-
-
-def _check_seed(seed: int) -> None:
-    if not 0 <= seed < SEED_LIMIT:
-        _fail(f"--seed must be in [0, 2**32), got {seed}")
-
-
-def _check_backend(backend: str) -> None:
-    if backend not in BACKENDS:
-        _fail(f"--backend: unknown backend {backend!r}; expected {' or '.join(BACKENDS)}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,6 +91,9 @@ class TrainArgs:
     """Continue the run in this directory where it stopped, with its saved config. Only
     --env-steps (the budget), --eval-every, --eval-envs and --checkpoint-every may change;
     any other flag that changes the saved config is refused."""
+    resume_intact: bool = False
+    """With --resume: when the latest checkpoint is damaged, move it (and any other damaged later
+    one) to RUN/damaged-checkpoints/ and resume from the latest intact checkpoint."""
     stop_after: int | None = None
     """Stop (with a checkpoint) after this many iterations; resume later with --resume."""
     progress: bool = True
@@ -121,9 +114,14 @@ class TrainArgs:
     """This process's index in [0, --num-processes) (or JAX_PROCESS_ID); 0 writes the logs."""
     heartbeat_timeout: int = DEFAULT_HEARTBEAT_TIMEOUT_S
     """Seconds without a sign of life after which a process of the group counts as lost."""
+    saved: tyro.conf.Suppress[ExperimentConfig | None] = None
+    """The saved config of --resume's run, read once by `train_defaults` (not a flag)."""
+    join_timeout: int = DEFAULT_JOIN_TIMEOUT_S
+    """Seconds to wait for the coordinator and the other processes when joining the group; an
+    unreachable --coordinator-address is then one error line."""
 
 
-GROUP_FLAGS = (*GROUP_SETTINGS.values(), "--heartbeat-timeout")
+GROUP_FLAGS = (*GROUP_SETTINGS.values(), "--heartbeat-timeout", "--join-timeout")
 """The flags that describe a group of processes, read before the full parse (`join_group`)."""
 
 
@@ -148,6 +146,8 @@ def train_defaults(argv: list[str]) -> TrainArgs:
     from pe_mjx.experiment import default_config, read_config_file
 
     found = _prescan(argv)
+    if "--resume-intact" in argv and "--resume" not in found:
+        _fail("--resume-intact goes with --resume RUN")
     preset = found.get("--preset")
     if preset is not None and preset not in PRESETS:
         _fail(f"--preset: unknown preset {preset!r}; known presets: {', '.join(PRESETS)}")
@@ -155,17 +155,19 @@ def train_defaults(argv: list[str]) -> TrainArgs:
         if "--preset" in found or "--config" in found:
             _fail("--resume continues a run with its saved config; drop --preset/--config")
         from pe_mjx.policy.store import CheckpointError
+        from pe_mjx.ppo.checkpoint import resume_intact
         from pe_mjx.ppo.run import saved_config
 
         try:
+            if "--resume-intact" in argv:
+                resume_intact(found["--resume"])
             base = saved_config(found["--resume"])
         except CheckpointError as err:
             _fail(f"--resume: {err}")
-    elif "--config" in found:
-        base = read_config_file(found["--config"], preset)
-    else:
-        base = default_config(preset or "20-5-8")
-    return TrainArgs(experiment=base)
+        return TrainArgs(experiment=base, saved=base)
+    if "--config" in found:
+        return TrainArgs(experiment=read_config_file(found["--config"], preset))
+    return TrainArgs(experiment=default_config(preset or "20-5-8"))
 
 
 def join_group(argv: list[str]) -> None:
@@ -187,6 +189,7 @@ def join_group(argv: list[str]) -> None:
             numbers.get("--num-processes"),
             numbers.get("--process-id"),
             numbers.get("--heartbeat-timeout", DEFAULT_HEARTBEAT_TIMEOUT_S),
+            join_timeout_s=numbers.get("--join-timeout", DEFAULT_JOIN_TIMEOUT_S),
         )
     except ValueError as err:
         _fail(str(err))
@@ -229,9 +232,10 @@ def _check_opponents(config: ExperimentConfig) -> None:
 def run_train(args: TrainArgs) -> None:
     from pe_mjx.ppo.checkpoint import CheckpointError, CheckpointWriteError
     from pe_mjx.ppo.distributed import ProcessLostError, is_primary
-    from pe_mjx.ppo.run import TrainingError, resume_config, train
+    from pe_mjx.ppo.run import TrainingError, resume_config, saved_config, train
 
     config = args.experiment
+    sizes.check_training(config)  # an absurd count is one line, before anything allocates
     if args.stop_after is not None and args.stop_after < 1:
         _fail(f"--stop-after must be >= 1, got {args.stop_after}")
     if args.view:
@@ -247,8 +251,8 @@ def run_train(args: TrainArgs) -> None:
         if args.resume is not None:
             if args.out is not None and args.out.resolve() != args.resume.resolve():
                 _fail("--out and --resume name different directories; give only --resume")
-            saved = resume_config(args.resume)
-            config = resume_config(args.resume, config)
+            saved = args.saved if args.saved is not None else saved_config(args.resume)
+            config = resume_config(args.resume, config, saved)
             for field in saved.differences(config):
                 old, new = getattr(saved, field), getattr(config, field)
                 print(f"pe-mjx train: resuming with {field} {old} -> {new}", flush=True)
@@ -290,245 +294,31 @@ def run_train(args: TrainArgs) -> None:
     except (CheckpointError, TrainingError) as err:
         _fail(str(err))
     if is_primary():
-        _training_summary(out, state, config)
-
-
-def _training_summary(out: Path, state, config: ExperimentConfig) -> None:
-    """What the run reached (its last evaluation) and the commands to look at it."""
-    from pe_mjx.plots import read_scalars
-
-    print(f"run {out}: {int(state.env_steps):,} env steps, iteration {int(state.iteration)}")
-    scalars = read_scalars(out)
-    for team, other in (("pursuer", "evader"), ("evader", "pursuer")):
-        found = scalars.get(f"eval/{team}_vs_scripted/success_rate")
-        if found:
-            step, value = found[-1]
-            print(
-                f"  last evaluation ({step:,} env steps), learned {team}s vs scripted {other}s: "
-                f"pursuer success {value:.3f}"
-            )
-    learned = set(state.teams)
-    pursuers = str(out) if "pursuer" in learned else config.pursuer.policy
-    evaders = str(out) if "evader" in learned else config.evader.policy
-    # A run in a scene of its own (counts or arena of no preset) names it by its config.json.
-    preset = config.preset in PRESETS and _same_scene(config.env, PRESETS[config.preset])
-    scene = f"--preset {config.preset}" if preset else f"--config {out}/config.json"
-    print("next:")
-    print(
-        f"  pe-mjx evaluate --pursuers {' '.join(dict.fromkeys([pursuers, 'scripted']))} "
-        f"--evaders {' '.join(dict.fromkeys([evaders, 'scripted']))} {scene} "
-        f"--backend {config.backend} --out {out}/eval"
-    )
-    if preset:  # the viewer starts from presets only (its GUI changes the counts)
-        print(
-            f"  pe-mjx view --preset {config.preset} --backend {config.backend} "
-            f"--pursuers {pursuers} --evaders {evaders}"
-        )
-    print(f"  pe-mjx plot {out}")
-    print(f"  tensorboard --logdir {out}/tb   (pip install 'pe-mjx[tensorboard]')")
-
-
-def _same_scene(a: EnvConfig, b: EnvConfig) -> bool:
-    """Whether two games have the same arena, teams and timing (their rewards may differ: the
-    training defaults add the evaders' flee shaping to a preset's)."""
-    return a.replace(reward=b.reward) == b
-
-
-@dataclasses.dataclass(frozen=True)
-class ViewArgs:
-    """Watch arenas live in the browser (Viser), replay recorded trajectories, export recordings.
-
-    Prints the local URL; the page shows the arenas in 3D and updates live. With --export it
-    writes <export>.viser and <export>.html (a page that plays without a server) and exits."""
-
-    viewer: Annotated[ViewerOptions, tyro.conf.arg(name="")] = dataclasses.field(
-        default_factory=ViewerOptions
-    )
-    replay: Path | None = None
-    """Replay this trajectory file (.npz written by `pe-mjx evaluate`) instead of a live run."""
-    export: Path | None = None
-    """Write <export>.viser and <export>.html and exit (the replay, or --steps live steps)."""
-    steps: int = 200
-    """Live control steps recorded by --export."""
-
-
-def _check_view_policies(args: ViewArgs) -> None:
-    """Loads --pursuers and --evaders once for the preset, so that a bad or damaged one is one
-    error line before the server starts."""
-    from pe_mjx.config import get_preset
-    from pe_mjx.viewer.live import PolicyError, load_team_policy
-
-    config = get_preset(args.viewer.preset)
-    for flag, spec, team in (
-        ("--pursuers", args.viewer.pursuers, "pursuer"),
-        ("--evaders", args.viewer.evaders, "evader"),
-    ):
-        try:
-            load_team_policy(spec, config, team)
-        except Exception as err:  # a damaged checkpoint too: one line, never a traceback
-            text = " ".join(str(err).split())  # library messages may span many lines
-            text = text if len(text) <= 300 else text[:297] + "..."
-            if not isinstance(err, PolicyError):
-                text = f"cannot load the policy {spec!r} ({type(err).__name__}: {text})"
-            _fail(f"{flag}: {text}")
-
-
-def _check_view_args(args: ViewArgs) -> None:
-    import math
-
-    from pe_mjx.viewer.guard import MAX_ARENAS, SEED_MAX, check_address
-
-    o = args.viewer
-    if o.arenas is not None and not 1 <= o.arenas <= MAX_ARENAS:
-        _fail(f"--arenas must be in 1..{MAX_ARENAS}, got {o.arenas}")
-    if o.backend not in BACKENDS:
-        _fail(f"--backend: unknown backend {o.backend!r}; expected {' or '.join(BACKENDS)}")
-    if not 0 <= o.seed <= SEED_MAX:
-        _fail(f"--seed must be in 0..{SEED_MAX}, got {o.seed}")
-    if not math.isfinite(o.speed) or o.speed < 0:
-        _fail(f"--speed must be a finite number >= 0, got {o.speed}")
-    if args.steps < 1:
-        _fail(f"--steps must be >= 1, got {args.steps}")
-    if o.trail_length < 1:
-        _fail(f"--trail-length must be >= 1, got {o.trail_length}")
-    if not math.isfinite(o.hold) or o.hold < 0:
-        _fail(f"--hold must be a finite number >= 0, got {o.hold}")
-    for root in o.policy_roots or ():
-        if not root.is_dir():
-            _fail(f"--policy-roots: {root} is not a directory")
-    if args.export is not None:
-        for suffix in (".viser", ".html"):
-            if args.export.with_suffix(suffix).exists():
-                _fail(f"--export: {args.export.with_suffix(suffix)} exists; refusing to overwrite")
-        _check_writable_dir("--export", args.export.parent)
-        return
-    _check_writable_dir("--record-dir", o.record_dir)
-    try:
-        check_address(o.host, o.port)  # the viewer warns about a non-local address
-    except ValueError as err:
-        _fail(str(err))
-
-
-def _check_writable_dir(flag: str, directory: Path) -> None:
-    """`directory` is, or can be created as, a writable directory."""
-    existing = directory
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if existing.exists() and not existing.is_dir():
-        _fail(f"{flag}: {existing} is not a directory")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        _fail(f"{flag}: {existing} is not writable")
-
-
-def run_view(args: ViewArgs) -> None:
-    from pe_mjx.trajectory import TrajectoryError
-
-    _check_view_args(args)
-    traj = None
-    if args.replay is not None:
-        from pe_mjx.trajectory import load as load_trajectory
-
-        try:
-            traj = load_trajectory(args.replay).select(args.viewer.arenas or 16)
-        except TrajectoryError as err:
-            _fail(str(err))
-    else:
-        _check_preset(args.viewer.preset)
-        _check_view_policies(args)
-    if args.export is not None:
-        from pe_mjx.viewer.replay import export_live, export_trajectory
-
-        o = args.viewer
-        speed = o.speed / 5.0 if o.speed > 0 else 1.0  # 5 env steps/s is real time
-        try:
-            if traj is not None:
-                paths = export_trajectory(traj, args.export, speed)
-            else:
-                paths = export_live(
-                    o.preset,
-                    o.pursuers,
-                    o.evaders,
-                    o.arenas or 1,
-                    o.backend,
-                    o.seed,
-                    args.steps,
-                    args.export,
-                    speed,
-                )
-        except (FileExistsError, TrajectoryError) as err:
-            _fail(str(err))
-        print(f"wrote {paths[0]} and {paths[1]}")
-        return
-    from pe_mjx.viewer.app import start_viewer
-
-    options = args.viewer
-    if traj is not None:  # the replay's own scene
-        options = dataclasses.replace(options, preset=traj.config.name)
-    viewer = None
-    try:  # a Ctrl-C at any point from here on stops the server it started
-        viewer = start_viewer(options, replay=traj, wait=False)
-        print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)
-        while True:
-            # Short sleeps: a SIGINT delivered to another thread (the server's) only sets a flag
-            # that this thread checks when its sleep returns; a long sleep held Ctrl-C back for
-            # up to an hour (a CI test that hung).
-            time.sleep(0.2)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        if viewer is not None:
-            viewer.stop()
+        training_summary(out, state, config)
 
 
 @dataclasses.dataclass(frozen=True)
 class EvaluateArgs:
     """Cross-confrontation (paper IV-B to IV-E): every pursuer policy against every evader policy.
     A policy is "scripted", "random", a shipped policy ("mix-20-5-8") or a `pe-mjx train` run
-    directory. Writes results.md (the
-    paper's table layout), results.csv, trials.csv, results.json, heatmaps and trajectories."""
+    directory. Writes results.md (the paper's table layout), results.csv, trials.csv,
+    results.json, heatmaps and trajectories."""
 
-    env: Annotated[EnvConfig, tyro.conf.arg(name="env")] = dataclasses.field(
-        default_factory=lambda: PRESETS["20-5-8"]
+    evaluation: Annotated[EvalConfig, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=EvalConfig
     )
-    """The scene the trials play, every field a flag as in `pe-mjx train` (--env.pursuer.num-agents
-    60 --env.arena.radius 10); its defaults are --preset's (or --config's). Policies trained
-    elsewhere play it unchanged: generalization."""
-    pursuers: tuple[str, ...] = ("scripted",)
-    """Pursuit policies."""
-    evaders: tuple[str, ...] = ("scripted",)
-    """Evasion policies."""
+    """What is played (`pe_mjx.eval_config.EvalConfig`, shared with `pe_mjx.evaluate`): each of
+    its fields is a flag of its own."""
     preset: PresetName | None = None
     """Scenario preset (P-E-K) whose scene the env flags start from (default 20-5-8)."""
     config: Path | None = None
     """Read the scene from this JSON or YAML file: an env tree (whole or partial, over the
     preset), an experiment tree or a run's config.json (its env); flags given with it override
     it."""
-    trials: int = 100
-    """Episodes per pairing (one vmapped batch)."""
-    seed: int = 0
-    """Seed of the trials: trial i of every pairing starts from the same arena."""
-    backend: Backend = "mjx"
-    """Env backend: mjx (MuJoCo MJX physics) or kinematic (exact arcs, faster to compile)."""
     progress: bool = True
     """Show a progress bar over each pairing's trials (on a terminal, on stderr)."""
-    record: int = 3
-    """Trials per pairing saved as trajectories for `pe-mjx view --replay`."""
     out: Path = Path("results/latest")
     """Output directory."""
-
-
-def _check_policy_specs(flag: str, specs: tuple[str, ...], team: str) -> None:
-    """Each spec is built in or a readable run that learned `team`: checked before any compile."""
-    from pe_mjx.policy.shipped import resolve_run
-
-    if not specs:
-        _fail(f"{flag} needs at least one policy (scripted, random, a shipped policy or a run)")
-    for spec in specs:
-        if spec in BUILTIN_POLICIES:
-            continue
-        if not spec or not resolve_run(spec).is_dir():
-            _fail(f"{flag}: {spec!r} is not scripted, random, a shipped policy or a run directory")
-        _check_run_learned(flag, spec, team)
 
 
 def evaluate_defaults(argv: list[str]) -> EvaluateArgs:
@@ -544,10 +334,12 @@ def evaluate_defaults(argv: list[str]) -> EvaluateArgs:
         _fail("pe-mjx evaluate has no --resume; name the run in --pursuers or --evaders")
     if "--config" in found:
         try:
-            return EvaluateArgs(env=read_env_file(found["--config"], preset))
+            env = read_env_file(found["--config"], preset)
         except ValueError as err:
             _fail(str(err))
-    return EvaluateArgs(env=PRESETS[preset or "20-5-8"])
+    else:
+        env = PRESETS[preset or "20-5-8"]
+    return EvaluateArgs(evaluation=EvalConfig(env=env))
 
 
 def _named_scene(env: EnvConfig) -> EnvConfig:
@@ -563,30 +355,19 @@ def _named_scene(env: EnvConfig) -> EnvConfig:
 
 
 def run_evaluate(args: EvaluateArgs) -> None:
-    if not 1 <= args.trials <= MAX_TRIALS:
-        _fail(f"--trials must be in 1..{MAX_TRIALS}, got {args.trials}")
-    if args.record < 0:
-        _fail(f"--record must be >= 0 (trials saved per pairing), got {args.record}")
-    _check_seed(args.seed)
-    _check_backend(args.backend)
     if args.out.exists() and not args.out.is_dir():
         _fail(f"--out: {args.out} is not a directory")
     if args.out.exists() and any(args.out.glob("results.*")):
         _fail(f"--out: {args.out} already holds results; choose another --out")
     _check_writable_dir("--out", args.out)
-    _check_policy_specs("--pursuers", args.pursuers, "pursuer")
-    _check_policy_specs("--evaders", args.evaders, "evader")
-    from pe_mjx.evaluate import evaluate
+    from pe_mjx.evaluate import check_policy_specs, run_evaluation
 
-    report = evaluate(
-        list(args.pursuers),
-        list(args.evaders),
-        _named_scene(args.env),
+    config = args.evaluation
+    check_policy_specs(config)  # before any compile
+    config = config.replace(env=_named_scene(config.env), record=config.recorded)
+    report = run_evaluation(
+        config,
         args.out,
-        args.trials,
-        args.seed,
-        args.backend,
-        min(args.record, args.trials),
         log=lambda line: print(line, file=sys.stderr, flush=True),  # stdout: the table only
         progress=args.progress,
     )
@@ -597,30 +378,13 @@ def run_evaluate(args: EvaluateArgs) -> None:
 def run_scene(args: SceneArgs) -> None:
     _check_preset(args.preset)
     _check_seed(args.seed)
-    if args.output.is_dir():
-        _fail(f"{args.output} is a directory; give the path of the file to write")
-    if args.output.exists() and not args.force:
-        _fail(f"{args.output} exists; pass --force to overwrite it")
-    if not args.output.parent.is_dir():
-        _fail(f"--output: directory {args.output.parent} does not exist")
-    _check_writable_dir("--output", args.output.parent)
+    check_new_file("--output", args.output, args.force)
     from pe_mjx.export import arena_xml
 
     xml = arena_xml(args.preset, args.seed)
-    # Write a fresh temporary file next to the output, then rename: never a half-written output,
-    # never an existing file clobbered by the temporary one.
+    # A temporary beside the output, renamed over it (pe_mjx.outputs): never half-written.
     try:
-        fd, tmp = tempfile.mkstemp(
-            dir=args.output.parent, prefix=f".{args.output.name}.", suffix=".tmp"
-        )
-        try:
-            with os.fdopen(fd, "w") as f:
-                f.write(xml)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, args.output)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        outputs.write_file(args.output, xml, force=args.force, flag="--output")
     except OSError as err:
         _fail(f"cannot write {args.output}: {err}")
     print(f"wrote {args.output} (preset {args.preset}, seed {args.seed})")
@@ -639,105 +403,12 @@ def run_demo(args: DemoArgs) -> None:
         print(f"{key:>28s}: {value}")
 
 
-@dataclasses.dataclass(frozen=True)
-class ExportArgs:
-    """Write one team's policy of a run as a self-contained file: StableHLO through `jax.export`
-    (the greedy policy, normaliser and parameters folded in), run by
-    pe_mjx/policy/export_loader.py with only jax and numpy, e.g. on a robot's computer (README,
-    "Running a policy on robots")."""
-
-    run: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
-    """A `pe-mjx train` run directory or a shipped policy's name (mix-20-5-8)."""
-    output: Annotated[Path, tyro.conf.arg(aliases=("-o",))] = Path("policy.jaxexport")
-    """Where to write the policy file (a zip of policy.stablehlo and meta.json)."""
-    team: Literal["pursuer", "evader"] = "pursuer"
-    """Which of the run's policies to export."""
-    preset: PresetName | None = None
-    """Scene whose counts fix the input shapes; smaller scenes are padded by the loader (default:
-    the run's own scene; 4-2-2 is the paper's robot setup)."""
-    force: bool = False
-    """Overwrite an existing output file."""
-
-
-def run_export(args: ExportArgs) -> None:
-    if args.output.is_dir():
-        _fail(f"--output: {args.output} is a directory; give the path of the file to write")
-    if args.output.exists() and not args.force:
-        _fail(f"--output: {args.output} exists; pass --force to overwrite it")
-    if not args.output.parent.is_dir():
-        _fail(f"--output: directory {args.output.parent} does not exist")
-    _check_writable_dir("--output", args.output.parent)
-    from pe_mjx.config import get_preset
-    from pe_mjx.policy.export import export_policy, write_policy
-    from pe_mjx.policy.store import CheckpointError
-
-    config = None if args.preset is None else get_preset(args.preset)
-    try:
-        program, info = export_policy(args.run, args.team, config)
-    except CheckpointError as err:
-        _fail(str(err))
-    try:
-        size = write_policy(args.output, program, info)
-    except OSError as err:
-        _fail(f"cannot write {args.output}: {err}")
-    counts = ", ".join(f"{n} {k}" for k, n in info["counts"].items())
-    print(f"wrote {args.output} ({size:,} bytes): the {args.team} policy of {args.run} ({counts})")
-
-
-@dataclasses.dataclass(frozen=True)
-class PlotArgs:
-    """Plot a run's learning curves (success against the scripted teams, per-team returns), or a
-    replay written by `pe-mjx evaluate` as a top-down trajectory plot (the paper's Fig. 4) or,
-    with -o x.gif / x.mp4, as an animation."""
-
-    path: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="RUN|REPLAY.npz")]
-    """A `pe-mjx train` run directory, or a trajectory .npz (results/*/trajectories/)."""
-    output: Annotated[Path | None, tyro.conf.arg(aliases=("-o",))] = None
-    """File to write: .png (default <run>/learning_curve.png or <replay>.png); for a replay
-    also .gif or .mp4 (an animation; MP4 needs the video extra)."""
-    arena: int = 0
-    """Which recorded arena of a replay to draw."""
-    fps: int = 10
-    """Frames per second of an animation."""
-
-
-def run_plot(args: PlotArgs) -> None:
-    from pe_mjx import plots
-
-    if args.fps < 1:
-        _fail(f"--fps must be >= 1, got {args.fps}")
-    if args.output is not None and not args.output.parent.is_dir():
-        _fail(f"--output: directory {args.output.parent} does not exist")
-    if args.path.is_dir():
-        if args.output is not None and args.output.suffix.lower() != ".png":
-            _fail("--output: learning curves are written as a .png file")
-        path, table = plots.learning_curves(args.path, args.output)
-        print(table, end="")
-        print(f"wrote {path}")
-        return
-    if not args.path.is_file():
-        _fail(f"{args.path}: no such run directory or replay file")
-    from pe_mjx.trajectory import TrajectoryError
-    from pe_mjx.trajectory import load as load_trajectory
-
-    try:
-        traj = load_trajectory(args.path)
-    except TrajectoryError as err:
-        _fail(str(err))
-    out = args.output or args.path.with_suffix(".png")
-    if out.suffix.lower() in (".gif", ".mp4"):
-        path = plots.animate_trajectory(traj, out, args.arena, args.fps)
-    elif out.suffix.lower() == ".png":
-        path = plots.plot_trajectory(traj, out, args.arena)
-    else:
-        _fail(f"--output: a replay is plotted to .png, .gif or .mp4, got {out.name}")
-    print(f"wrote {path}")
-
-
 def run_reproduce(args: ReproduceArgs) -> None:
     from pe_mjx.reproduce import reproduce
 
-    print(f"wrote {reproduce(args)}")
+    report = reproduce(args)
+    if report is not None:
+        print(f"wrote {report}")
 
 
 def _one_line(box: str) -> str:
@@ -762,6 +433,8 @@ def _one_line(box: str) -> str:
             path = path[:-1]
         flag = ".".join([*path, field]).replace("_", "-")
         message = f"--{flag} {found.group(3)}"
+    else:  # a top-level check of a subcommand's args ("Error parsing ReproduceArgs: --only ...")
+        message = _flag_message(re.sub(r"^Error parsing [A-Z]\w*: ", "", message))
     return message or "invalid arguments (see --help)"
 
 
@@ -777,8 +450,17 @@ def _parse(parse: Callable[[], object]) -> object:
             raise
         _fail(_one_line(captured.getvalue()))
     except ValueError as err:  # a config check that failed while the flags were parsed
-        _fail(str(err))
+        _fail(_flag_message(str(err)))
     raise AssertionError("unreachable")
+
+
+def _flag_message(message: str) -> str:
+    """A top-level config field's check as its flag's: "invalid config: trials must be ..." ->
+    "--trials must be ..." (nested fields come through tyro's box, `_one_line`)."""
+    found = re.fullmatch(r"invalid config: ([a-z][a-z_]*) ((?:must|needs) .*)", message)
+    if found is None:
+        return message
+    return f"--{found.group(1).replace('_', '-')} {found.group(2)}"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -791,6 +473,7 @@ def main(argv: list[str] | None = None) -> None:
         "export": (ExportArgs, run_export),
         "plot": (PlotArgs, run_plot),
         "reproduce": (ReproduceArgs, run_reproduce),
+        "ship": (ShipArgs, run_ship),
     }
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv == ["--version"]:
@@ -836,16 +519,18 @@ def main(argv: list[str] | None = None) -> None:
             with interrupts.installed():
                 try:
                     fn(args)
+                    interrupts.check()  # a Ctrl-C after the last safe point is not lost
                 except ValueError as err:
                     _fail(str(err))
                 except OSError as err:  # a file system failure while working: one line too
                     where = f"{err.filename}: " if err.filename else ""
                     _fail(f"{where}{err.strerror or err}")
                 except KeyboardInterrupt:
-                    print("pe-mjx: interrupted", file=sys.stderr)
-                    raise SystemExit(130) from None
+                    interrupts.stop()  # one line, exit 130 (without the interpreter's teardown)
+            interrupts.finish()  # the pe-mjx process ends here (exit 0, no teardown)
             return
 
 
 if __name__ == "__main__":
+    interrupts.install_for_cli()
     main()

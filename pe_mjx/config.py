@@ -10,6 +10,7 @@ import typing
 from typing import Any, ClassVar, Literal, TypeVar
 
 from pe_mjx.names import TEAMS
+from pe_mjx.sizes import shorten
 
 T = TypeVar("T")
 
@@ -66,7 +67,9 @@ def _convert(value: Any, kind: Any, where: str) -> Any:
     elif _scalar_ok(value, kind):
         return float(value) if kind is float else value
     allowed = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
-    raise ValueError(f"invalid config: {where} has the wrong type or value: {value!r} ({allowed})")
+    raise ValueError(
+        f"invalid config: {where} has the wrong type or value: {shorten(value)} ({allowed})"
+    )
 
 
 def from_dict(cls: type[T], data: Any, prefix: str = "") -> T:
@@ -83,9 +86,9 @@ def from_dict(cls: type[T], data: Any, prefix: str = "") -> T:
     data = {k: v for k, v in data.items() if k not in retired}
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(data) - set(fields))
+    unknown = sorted(str(k) for k in set(data) - set(fields))  # YAML keys may be numbers
     if unknown:
-        raise ValueError(f"invalid config: unknown fields {[prefix + k for k in unknown]}")
+        raise ValueError(f"invalid config: unknown fields {shorten([prefix + k for k in unknown])}")
     missing = [
         prefix + n
         for n, f in fields.items()
@@ -221,8 +224,9 @@ class RewardConfig:
     """Sum f_p's shaping over each pursuer's k nearest active evaders only (ours; None: over every
     evader, as the paper). In a large arena the paper's sum is dominated by evaders far out of a
     local policy's view: at a 240-60-120 reset it is 63 per pursuer and step, 17 of it from the
-    4 nearest evaders (at 20-5-8: 16.6 in all; tools/pursuit_shaping.py), so a pursuer's return
-    is mostly what it can neither see nor change; set it to the network's `nearest_k` there."""
+    4 nearest evaders (at 20-5-8: 16.6 in all; experiments/results/pursuit_shaping.py), so a
+    pursuer's return is mostly what it can neither see nor change; set it to the network's
+    `nearest_k` there."""
     capture: float = 5000.0
     """r_s: reward to each pursuer that captures an evader this step. It must beat shadowing the
     evader at d_cap for the rest of the discounted horizon, f_p,max / (1 - gamma) = 40 / 0.01 =
@@ -442,3 +446,20 @@ def get_preset(name: str) -> EnvConfig:
         return PRESETS[name]
     except KeyError:
         raise ValueError(f"unknown preset {name!r}; known presets: {', '.join(PRESETS)}") from None
+
+
+def scene_by_counts(name: str) -> EnvConfig:
+    """A preset by its name, or the scene "P-E-K" (pursuers, evaders, obstacles) under 24-6-12's
+    rules at its density: the arena's area grows with the entity count, the 240-60-120 preset's
+    rule (the scenes beyond the paper's in docs/results.md)."""
+    if name in PRESETS:
+        return PRESETS[name]
+    p, e, k = (int(x) for x in name.split("-"))
+    base = PRESETS["24-6-12"]
+    radius = 5.0 * math.sqrt((p + e + k) / 42)
+    return base.replace(
+        name=name,
+        pursuer=dataclasses.replace(base.pursuer, num_agents=p),
+        evader=dataclasses.replace(base.evader, num_agents=e),
+        arena=dataclasses.replace(base.arena, radius=radius, num_obstacles=k),
+    )

@@ -371,16 +371,11 @@ def _read_tree(path: Path) -> dict[str, Any]:
     """The object a JSON or YAML config file holds (ValueError naming `--config` and the file).
     A run directory's `config.json` gives its experiment tree. The size is checked before the
     file is read."""
-    try:
-        size = path.stat().st_size
-    except OSError as err:
-        raise ValueError(f"--config {path}: cannot read: {err.strerror or err}") from None
-    if size > MAX_CONFIG_BYTES:
-        raise ValueError(f"--config {path}: larger than 1 MB; not a config file")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as err:
-        raise ValueError(f"--config {path}: cannot read: {err.__class__.__name__}") from None
+    from pe_mjx import outputs
+
+    # At most MAX_CONFIG_BYTES + 1 bytes are read, whatever the file is: a size from stat()
+    # held nothing back for /dev/zero or a pipe, which were read forever.
+    text = outputs.read_text(path, MAX_CONFIG_BYTES, flag="--config")
     try:
         if path.suffix.lower() in (".yaml", ".yml"):
             import yaml

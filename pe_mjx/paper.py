@@ -2,7 +2,7 @@
 
 `paper_runs()` gives the twelve co-evolutions of paper IV-B (four encoders at three scales, each
 training a pursuer and an evader policy with the same encoder, 10 million env steps); `PAPER`
-holds the paper's numbers that `tools/reproduce_paper.py` sets beside ours, and `TABLES` which
+holds the paper's numbers that `pe-mjx reproduce` sets beside ours, and `TABLES` which
 scene and training scales each table uses.
 """
 

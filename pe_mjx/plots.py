@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_mjx import interrupts, outputs
 from pe_mjx.ppo import curves
 from pe_mjx.ppo.curves import CURVES_FILE
 from pe_mjx.trajectory import Trajectory
@@ -66,8 +67,11 @@ def _tensorboard_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float
     return {k: sorted(v) for k, v in scalars.items()}
 
 
-def learning_curves(run_dir: str | Path, out: str | Path | None = None) -> tuple[Path, str]:
-    """Writes the run's learning curves (success rates; episodic returns when logged) as a PNG.
+def learning_curves(
+    run_dir: str | Path, out: str | Path | None = None, force: bool = False
+) -> tuple[Path, str]:
+    """Writes the run's learning curves (success rates; episodic returns when logged) as a PNG
+    (through `pe_mjx.outputs`: an existing file is replaced only with `force`).
 
     Returns:
       The PNG's path and a Markdown table of the evaluations (env steps, both success rates).
@@ -111,8 +115,11 @@ def learning_curves(run_dir: str | Path, out: str | Path | None = None) -> tuple
         axes[1].set_title(f"{run_dir.name}: episodic return")
     fig.tight_layout()
     path = Path(out) if out is not None else run_dir / "learning_curve.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with outputs.writing(path, force=force, flag="--output") as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
     lines = [
         "| env steps | learned pursuers vs scripted evaders "
         "| scripted pursuers vs learned evaders |",
@@ -156,7 +163,7 @@ def _last_frame(traj: Trajectory, arena: int) -> int:
     return int(moving[-1]) + 1 if len(moving) else 0
 
 
-def plot_trajectory(traj: Trajectory, out: str | Path, arena: int = 0) -> Path:
+def plot_trajectory(traj: Trajectory, out: str | Path, arena: int = 0, force: bool = False) -> Path:
     """A top-down plot of one recorded arena in the style of the paper's Fig. 4: the wall and
     obstacles, each agent's path (pursuers red, evaders blue) from a hollow start marker, and a
     cross where an agent was downed."""
@@ -192,15 +199,24 @@ def plot_trajectory(traj: Trajectory, out: str | Path, arena: int = 0) -> Path:
     ax.set_title(f"{traj.config.name}{': ' + who if who else ''} ({end} steps)", fontsize=10)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+    try:
+        with outputs.writing(out, force=force, flag="--output") as tmp:
+            fig.savefig(tmp, dpi=120, format="png")
+    finally:
+        plt.close(fig)
     return out
 
 
 def animate_trajectory(
-    traj: Trajectory, out: str | Path, arena: int = 0, fps: int = 10, stride: int = 1
+    traj: Trajectory,
+    out: str | Path,
+    arena: int = 0,
+    fps: int = 10,
+    stride: int = 1,
+    force: bool = False,
 ) -> Path:
-    """A GIF (or MP4 with the `video` extra, imageio-ffmpeg) of one recorded arena, top-down."""
+    """A GIF (or MP4 with the `video` extra, imageio-ffmpeg) of one recorded arena, top-down,
+    written through `pe_mjx.outputs` (whole or not at all; an existing file only with `force`)."""
     import imageio.v3 as iio
     import matplotlib
 
@@ -219,11 +235,13 @@ def animate_trajectory(
             ) from None
     if not 0 <= arena < traj.num_arenas:
         raise ValueError(f"--arena must be in 0..{traj.num_arenas - 1}, got {arena}")
+    outputs.check_target(out, force=force, flag="--output")  # before the frames are drawn
     end = _last_frame(traj, arena)
     colors = np.array(_team_colors(traj))
     frames = []
     fig, ax = plt.subplots(figsize=(4, 4), dpi=80)
     for t in range(0, end + 1, max(1, stride)):
+        interrupts.check()  # a safe point between frames (Ctrl-C)
         ax.clear()
         _draw_arena(ax, traj, arena)
         alive = traj.active[t, arena]
@@ -234,10 +252,11 @@ def animate_trajectory(
         fig.canvas.draw()
         frames.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
     plt.close(fig)
-    if out.suffix.lower() == ".gif":
-        iio.imwrite(out, np.stack(frames), duration=1000 / fps, loop=0)
-    else:
-        iio.imwrite(out, np.stack(frames), fps=fps)
+    with outputs.writing(out, force=force, flag="--output") as tmp:
+        if out.suffix.lower() == ".gif":
+            iio.imwrite(tmp, np.stack(frames), duration=1000 / fps, loop=0, extension=".gif")
+        else:
+            iio.imwrite(tmp, np.stack(frames), fps=fps, extension=".mp4")
     return out
 
 

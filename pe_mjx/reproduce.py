@@ -5,8 +5,12 @@
     pe-mjx reproduce --skip-train --runs runs  # evaluate existing runs only
     pe-mjx reproduce --skip-train --runs assets/policies --tables III V VI \\
         --transfer-evaders pursuers            # the shipped 20-5-8 policies (docs/results.md)
+    pe-mjx reproduce --only mix-20-5-8 --stop-after 50 --skip-eval
+                                               # one run, 50 iterations per call (resumable)
 
-Resumable: training resumes every run from its last checkpoint, and a table whose results.json
+Resumable: training resumes every run that has a checkpoint from there (so the command can be
+repeated, e.g. in chunks of --stop-after iterations, until every run is done: the tables are
+evaluated once no run it trained is left unfinished), and a table whose results.json
 exists is not evaluated again (delete it to redo it; with `--extend`, only the pairings of runs
 found since are played, the others kept once one of them replays the same game). Tables II-IV:
 at each scale, every pursuit policy against every evasion policy of another co-evolution at that
@@ -39,7 +43,7 @@ class ReproduceArgs:
     """Train the paper's co-evolutions and write our Tables II-VI beside the paper's."""
 
     runs: Path = Path("runs")
-    """Where the co-evolution runs live (train/launch.py's layout: <encoder>-<preset>)."""
+    """Where the co-evolution runs live (<runs>/<encoder>-<preset><suffix>)."""
     suffix: str = ""
     """Appended to every run's name (<encoder>-<preset><suffix>): "-3m" evaluates the shipped
     policies trained to 3M env steps (assets/policies/mix-20-5-8-3m, ...)."""
@@ -49,8 +53,19 @@ class ReproduceArgs:
     """The report with our tables beside the paper's (docs/results.md quotes and discusses it)."""
     fraction: float = 1.0
     """Training budget as a fraction of the paper's 10 million env steps per run."""
+    env_steps: int | None = None
+    """Training budget per run in env steps (instead of --fraction)."""
+    only: tuple[str, ...] = ()
+    """Train these runs (e.g. mix-20-5-8) instead of those the chosen tables use."""
+    stop_after: int | None = None
+    """Train each run at most this many iterations in this call (then checkpoint and move on;
+    repeat the command to go on); the tables wait until no run is left unfinished."""
+    train_seed: int = 0
+    """Seed of the training runs (--seed is the evaluation trials')."""
     skip_train: bool = False
     """Evaluate the runs that exist; train nothing."""
+    skip_eval: bool = False
+    """Train only; evaluate no table and write no report."""
     encoders: tuple[EncoderName, ...] = ENCODERS
     """The methods whose co-evolutions are trained and confronted."""
     tables: tuple[TableName, ...] = tuple(TABLES)
@@ -74,6 +89,34 @@ class ReproduceArgs:
     then only the new pairings are played (if it differs, the whole table is). Without it such
     a table is kept as it is."""
 
+    def __post_init__(self) -> None:
+        if not 0 < self.fraction <= 1:
+            raise ValueError(f"--fraction must be in (0, 1], got {self.fraction}")
+        if self.env_steps is not None and self.env_steps < 1:
+            raise ValueError(f"--env-steps must be >= 1, got {self.env_steps}")
+        if self.stop_after is not None and self.stop_after < 1:
+            raise ValueError(f"--stop-after must be >= 1, got {self.stop_after}")
+        if not 0 <= self.train_seed < 2**32:
+            raise ValueError(f"--train-seed must be in [0, 2**32), got {self.train_seed}")
+        from pe_mjx.eval_config import MAX_TRIALS
+
+        if not 1 <= self.trials <= MAX_TRIALS:  # before hours of training, not after
+            raise ValueError(f"--trials must be in 1..{MAX_TRIALS}, got {self.trials}")
+        if not re.fullmatch(r"[A-Za-z0-9._-]*", self.suffix):
+            raise ValueError(
+                f"--suffix may hold only letters, digits, '.', '_' and '-', got {self.suffix!r}"
+            )
+        unknown = sorted(set(self.only) - set(paper_runs()))
+        if unknown:
+            raise ValueError(
+                f"--only: unknown runs {', '.join(unknown)}; known: {', '.join(paper_runs())}"
+            )
+
+    @property
+    def budget(self) -> int:
+        """Env steps per training run."""
+        return self.env_steps or max(1, int(ENV_STEPS * self.fraction))
+
 
 def table_scales(table: str, transfer_evaders: str = "paper") -> tuple[str, str, str]:
     """(scene, pursuers' training scale, evaders' training scale) of one table."""
@@ -86,21 +129,29 @@ def method_of(source: str) -> str:
     return Path(source).name.split("-")[0]
 
 
-def _train(args: ReproduceArgs) -> None:
+def _train(args: ReproduceArgs) -> bool:
+    """Trains (or resumes) the runs the tables use (or --only's); whether all are done."""
     from pe_mjx.policy import store
     from pe_mjx.ppo.run import train
 
-    budget = max(1, int(ENV_STEPS * args.fraction))
+    budget = args.budget
     scales = {s for t in args.tables for s in table_scales(t, args.transfer_evaders)[1:]}
-    for name, config in paper_runs(budget, args.backend).items():
-        if config.pursuer.network.encoder not in args.encoders or config.preset not in scales:
+    finished = True
+    for name, config in paper_runs(budget, args.backend, args.train_seed).items():
+        if args.only:
+            if name not in args.only:
+                continue
+        elif config.pursuer.network.encoder not in args.encoders or config.preset not in scales:
             continue  # only the co-evolutions that the chosen tables use
         out = args.runs / f"{name}{args.suffix}"
         resume = (out / store.CHECKPOINT_DIR).exists()
         if resume and store.read_meta(out)["env_steps"] >= budget:
             continue
-        print(f"training {out.name} ({budget:,} env steps)", flush=True)
-        train(config, out, resume=resume)
+        how = "resuming" if resume else "starting"
+        print(f"training {out.name} ({budget:,} env steps, {how})", flush=True)
+        _, state = train(config, out, resume=resume, stop_after=args.stop_after)
+        finished = finished and int(state.env_steps) >= budget
+    return finished
 
 
 def found_runs(args: ReproduceArgs, scale: str) -> list[str]:
@@ -128,7 +179,7 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
         pursuers, evaders = found_runs(args, p_scale), found_runs(args, e_scale)
         keep = None
         if (out / "results.json").exists():
-            done[table] = json.loads((out / "results.json").read_text())
+            done[table] = _read_results(out / "results.json")
             played = {p[team]["source"] for p in done[table]["pairings"] for team in TEAMS}
             unplayed = sorted(set(pursuers + evaders) - played)
             if unplayed and args.extend:
@@ -163,8 +214,24 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
             skip_same_method=not full,
             keep=keep,
         )
-        done[table] = json.loads((out / "results.json").read_text())
+        done[table] = _read_results(out / "results.json")
     return done
+
+
+def _read_results(path: Path) -> dict:
+    """An evaluation's results.json (read with a cap; a ValueError naming it if it is not one)."""
+    from pe_mjx import outputs
+    from pe_mjx.evaluate import MAX_RESULTS_BYTES
+
+    try:
+        data = json.loads(outputs.read_text(path, MAX_RESULTS_BYTES))
+        if not isinstance(data, dict) or not isinstance(data.get("pairings"), list):
+            raise ValueError("no pairings")
+    except ValueError as err:
+        raise ValueError(
+            f"{path}: not an evaluation's results ({err}); delete it to redo it"
+        ) from None
+    return data
 
 
 def _budgets(done: dict[str, dict]) -> list[str]:
@@ -192,6 +259,8 @@ def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
         "the policies as found (their training budgets are listed below)"
         if args.skip_train
         else f"{args.fraction:g} x 10M env steps per co-evolution"
+        if args.env_steps is None
+        else f"{args.env_steps:,} env steps per co-evolution"
     )
     lines = [
         "# Paper reproduction: Tables II-VI",
@@ -253,19 +322,25 @@ def _report(args: ReproduceArgs, done: dict[str, dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def reproduce(args: ReproduceArgs) -> Path:
-    """Trains what the chosen tables need, evaluates them, writes the report; returns its path."""
-    if not 0 < args.fraction <= 1:
-        raise ValueError(f"--fraction must be in (0, 1], got {args.fraction}")
-    if args.trials < 1:
-        raise ValueError(f"--trials must be >= 1, got {args.trials}")
-    if not re.fullmatch(r"[A-Za-z0-9._-]*", args.suffix):
-        raise ValueError(
-            f"--suffix may hold only letters, digits, '.', '_' and '-', got {args.suffix!r}"
-        )
-    if not args.skip_train:
-        _train(args)
+def reproduce(args: ReproduceArgs) -> Path | None:
+    """Trains what the chosen tables need, evaluates them, writes the report; returns its path
+    (None when nothing was evaluated: --skip-eval, or runs left unfinished by --stop-after)."""
+    from pe_mjx import outputs
+
+    if args.docs.parent.is_dir():  # a --docs that cannot be written: said before any work
+        outputs.check_target(args.docs, force=True, flag="--docs")
+    finished = args.skip_train or _train(args)
+    if args.skip_eval or not finished:
+        if not finished:
+            print("some runs are unfinished (--stop-after): run the command again to go on")
+        return None
     done = _evaluate(args)
+    if not done:  # an empty report never replaces the user's --docs
+        suffix = f" (suffix {args.suffix!r})" if args.suffix else ""
+        raise ValueError(
+            f"--runs: {args.runs} holds no run with a checkpoint for table(s) "
+            f"{', '.join(args.tables)}{suffix}; nothing to report, {args.docs} is left as it was"
+        )
     args.docs.parent.mkdir(parents=True, exist_ok=True)
-    args.docs.write_text(_report(args, done))
+    outputs.write_file(args.docs, _report(args, done), force=True, flag="--docs")
     return args.docs

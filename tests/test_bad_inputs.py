@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from pe_mjx.cli import main
-from pe_mjx.policy.shipped import policies_dir
 from pe_mjx.ppo.checkpoint import lock_run
+from tests.policy_copies import orbax_copy
 
 BIG = str(2**63)
 HUGE = str(2**64)
@@ -109,7 +109,7 @@ def world(tmp_path_factory) -> Path:
     (root / "emptydir").mkdir()
     (root / "results").mkdir()
     (root / "results" / "results.md").write_text("old results")
-    shipped = policies_dir() / "mix-20-5-8"
+    shipped = orbax_copy("mix-20-5-8", root / "orbax-copy")
     runs = root / "runs"
     for name in DAMAGED:
         run = runs / name
@@ -305,6 +305,16 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
     add("train-resume-and-out", "train", "--resume", str(runs / "good"), *out)
     for name in ("only_unfinished_step", "meta_truncated", "num_actions_off_by_one"):
         add(f"train-resume-damaged-{name}", "train", "--resume", str(runs / name))
+    # --resume-intact: only with --resume; a run with nothing resumable stays as it was.
+    add("train-resume-intact-alone", "train", *TINY_TRAIN, *out, "--resume-intact")
+    for name in ("good", "meta_truncated", "params_truncated", "only_unfinished_step"):
+        add(f"train-resume-intact-{name}", "train", "--resume", str(runs / name),
+            "--resume-intact")  # fmt: skip
+    # Joining a group: bad timeouts fail before any network is touched.
+    group = ["--coordinator-address", "127.0.0.1:1", "--num-processes", "2", "--process-id", "1"]
+    for timeout in ("0", "-3", "soon", "1.5"):
+        add(f"train-join-timeout-{timeout}", "train", *TINY_TRAIN, *out, *group,
+            "--join-timeout", timeout)  # fmt: skip
     return cases
 
 

@@ -160,6 +160,7 @@ def test_every_flag_of_every_subcommand_has_help_text(capsys):
         "export": cli.ExportArgs,
         "plot": cli.PlotArgs,
         "reproduce": cli.ReproduceArgs,
+        "ship": cli.ShipArgs,
     }
     undocumented, counted = [], 0
     for name, cls in commands.items():
@@ -183,17 +184,58 @@ def test_training_summary_names_the_scene_so_that_its_commands_run(tmp_path, cap
     3 evaders at 24-6-12) by the run's config.json, and a frozen team by its policy."""
     from types import SimpleNamespace
 
-    from pe_mjx.cli import _training_summary
+    from pe_mjx.commands.train_summary import training_summary
     from pe_mjx.experiment import default_config
 
     state = SimpleNamespace(env_steps=64, iteration=1, teams={"evader": None})
     own = default_config("24-6-12").override(
         {"env.name": "24-3-12", "env.evader.num_agents": 3, "pursuer.policy": "mix-20-5-8"}
     )
-    _training_summary(tmp_path, state, own)
+    training_summary(tmp_path, state, own)
     said = capsys.readouterr().out
     assert f"--config {tmp_path}/config.json" in said and "--preset" not in said, said
     assert "--pursuers mix-20-5-8 scripted --evaders" in said, said
-    _training_summary(tmp_path, state, default_config("24-6-12"))
+    training_summary(tmp_path, state, default_config("24-6-12"))
     said = capsys.readouterr().out
     assert "--preset 24-6-12 " in said and "pe-mjx view --preset 24-6-12" in said, said
+
+
+@pytest.mark.parametrize("trails", [True, False])
+def test_view_export_honours_the_options_of_the_live_view(tmp_path, monkeypatch, capsys, trails):
+    """`view --export` plays the policies as the live view would (--deterministic: greedy) with
+    its trail length and --trails, resolving each policy once; it checked --trail-length and
+    then recorded 30-step trails of sampling policies whatever was asked."""
+    from pe_mjx import cli
+    from pe_mjx.viewer import live, replay
+
+    played, recorded, resolved = {}, [], []
+    real_run, real_resolve = live.LiveRun, live.resolve_policy
+
+    def run(config, policies, *args):
+        played.update(policies)
+        return real_run(config, policies, *args)
+
+    def resolve(spec, team, *args):
+        resolved.append((spec, team))
+        return real_resolve(spec, team, *args)
+
+    def record(config, arenas, frames, stem, dt):
+        recorded.extend(frames)
+        return Path(f"{stem}.viser"), Path(f"{stem}.html")
+
+    monkeypatch.setattr(live, "LiveRun", run)
+    monkeypatch.setattr(live, "resolve_policy", resolve)
+    monkeypatch.setattr(replay, "export_recording", record)
+    argv = ["view", "--preset", "2-1-1", "--backend", "kinematic", "--pursuers", "mix-20-5-8"]
+    argv += ["--deterministic", "--trail-length", "3", "--steps", "5", "--arenas", "2"]
+    argv += ["--export", str(tmp_path / "rec"), "--trails" if trails else "--no-trails"]
+    cli.main(argv)
+    assert "wrote" in capsys.readouterr().out
+    assert played["pursuer"].deterministic and played["pursuer"].learned
+    assert resolved == [("mix-20-5-8", "pursuer"), ("scripted", "evader")]  # once each
+    assert 2 <= len(recorded) <= 6
+    for _, trail in recorded:
+        if trails:
+            assert trail.shape[:2] == (3, 2)  # [trail length, arenas, agents, 2]
+        else:
+            assert trail is None

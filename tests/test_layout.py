@@ -12,8 +12,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "pe_mjx"
 
 # Lower layers never import higher ones; modules of one layer may import each other (no cycles).
 LAYERS: dict[str, tuple[str, ...]] = {
-    "names": ("names", "_quiet", "interrupts"),
-    "config": ("config", "experiment", "paper"),
+    "names": ("names", "_quiet", "interrupts", "outputs", "sizes"),
+    "config": ("config", "experiment", "eval_config", "paper"),
     "scene": ("scene",),
     "env": (
         "env",
@@ -42,10 +42,12 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "policy.shipped",
         "policy.scripted",
         "policy.inference",
+        "policy.packed",
         "policy.store",
         "policy.resolve",
         "policy.export",
         "policy.deploy",
+        "policy.ship",
     ),
     "play": (
         "rollout",
@@ -63,22 +65,43 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "ppo.train",
         "ppo.checkpoint",
         "ppo.curves",
+        "ppo.run_files",
+        "ppo.loggers",
         "ppo.run",
     ),
     "apps": (
+        "bench",
+        "eval_metrics",
+        "eval_games",
+        "eval_reports",
         "evaluate",
         "plots",
         "reproduce",
         "viewer",
         "viewer.options",
+        "viewer.browser",
         "viewer.guard",
         "viewer.scene",
         "viewer.gui",
         "viewer.live",
         "viewer.replay",
+        "viewer.sources",
+        "viewer.commands",
+        "viewer.recording",
+        "viewer.training_view",
         "viewer.app",
     ),
-    "cli": ("cli", "__init__"),
+    "cli": (
+        "cli",
+        "__init__",
+        "commands",
+        "commands.common",
+        "commands.export",
+        "commands.plot",
+        "commands.ship",
+        "commands.train_summary",
+        "commands.view",
+    ),
 }
 RANK = {m: i for i, mods in enumerate(LAYERS.values()) for m in mods}
 

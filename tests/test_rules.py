@@ -192,7 +192,12 @@ PLAY, DRIVE = slice(0, B_PLAY), slice(B_PLAY, None)
 
 def test_random_valid_play_keeps_the_rules(run):
     """Zero wall/obstacle incapacitations, zero active agents overlapping the wall or an
-    obstacle, zero incapacitated agents that move, on both backends."""
+    obstacle, zero incapacitated agents that move, on both backends.
+
+    The agent-steps the run counted (each step of each arena adds the env's agent count) must be
+    B_PLAY * T_PLAY * (P + E): the run played all it was meant to, so the module's 10^6 figure
+    is what was checked. (A test that multiplied the constants alone, running no package code,
+    was removed: it could only fail if someone edited the constants.)"""
     preset, (stats, _) = run
     for b in BACKENDS:
         t = totals(stats[b], PLAY)
@@ -201,11 +206,6 @@ def test_random_valid_play_keeps_the_rules(run):
         assert t["wall_or_obstacle"] == 0, (b, t)
         assert t["active_overlap"] == 0, (b, t)
         assert t["incapacitated_moved"] == 0, (b, t)
-
-
-def test_random_valid_play_has_a_million_agent_steps_per_backend():
-    total = sum(B_PLAY * T_PLAY * get_preset(p).num_agents for p in PAPER_PRESETS)
-    assert total >= 10**6
 
 
 def test_mjx_and_kinematic_agree_on_every_event(run):

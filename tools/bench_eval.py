@@ -17,17 +17,15 @@ before 2026-12-02, so that the speed-up is measured in one run.
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import json
-import os
-import platform
-import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import tyro
 
+from pe_mjx import bench
+from pe_mjx.bench import best_of
 from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.experiment import ExperimentConfig
 from pe_mjx.names import ENCODERS
@@ -47,21 +45,11 @@ class Args:
     repeats: int = 2
 
 
-def _best(fn, repeats: int) -> float:
-    jax.block_until_ready(fn())
-    best = float("inf")
-    for _ in range(repeats):
-        tic = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - tic)
-    return best
-
-
 def measure(config: ExperimentConfig, args: Args) -> dict:
     trainer = Trainer(config)
     state = trainer.init()
     iteration = jax.jit(trainer.iteration)
-    t_iter = _best(lambda: iteration(state)[1], args.repeats)
+    t_iter = best_of(lambda: iteration(state)[1], repeats=args.repeats).wall
     row = {
         "preset": config.preset,
         "encoder": config.pursuer.network.encoder,
@@ -74,7 +62,7 @@ def measure(config: ExperimentConfig, args: Args) -> dict:
     for envs in args.eval_envs:
         evaluator = Trainer(config.replace(eval_envs=envs))
         evaluate = jax.jit(evaluator.evaluate)
-        t_eval = _best(lambda ev=evaluate: ev(state, key), args.repeats)
+        t_eval = best_of(lambda ev=evaluate: ev(state, key), repeats=args.repeats).wall
         row["eval_s"][str(envs)] = t_eval
         row["share"][str(envs)] = {
             str(every): t_eval / (t_eval + every * t_iter) for every in args.eval_every
@@ -97,7 +85,7 @@ def scripted_ms(preset: str, backend: str, repeats: int) -> dict:
             for team in ("pursuer", "evader"):
                 policy = scripted.make_policy("scripted", config.env, team)
                 step = jax.jit(lambda o, k, p=policy: jax.vmap(p)(o, k))
-                seconds = _best(lambda s=step, t=team: s(obs[t], keys), 10 * repeats)
+                seconds = best_of(lambda s=step, t=team: s(obs[t], keys), repeats=10 * repeats).wall
                 out[f"{team} ({form})"] = 1000 * seconds
     finally:
         scripted._norm = shipped
@@ -115,14 +103,7 @@ def main() -> None:
             row = measure(config, args)
             print(json.dumps(row), flush=True)
             rows.append(row)
-    machine = {
-        "cpu": platform.processor() or platform.machine(),
-        "cores": os.cpu_count(),
-        "load_avg_1min": os.getloadavg()[0],
-        "jax": jax.__version__,
-        "devices": [str(d) for d in jax.devices()],
-        "date": datetime.date.today().isoformat(),
-    }
+    machine = bench.machine()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     payload = {"machine": machine, "runs": rows, "scripted_policy_ms": scripted}
     args.out.write_text(json.dumps(payload, indent=1))

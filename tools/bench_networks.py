@@ -12,32 +12,13 @@ gradient of a PPO-shaped loss: log-prob, value and entropy terms) on a batch of 
 from __future__ import annotations
 
 import argparse
-import time
 
 import jax
 import jax.numpy as jnp
 
 import pe_mjx
 from pe_mjx import networks as nets
-
-
-def _time(fn, args, repeats: int) -> tuple[float, float, float]:
-    """(compile+first call seconds, best wall seconds per call, best CPU seconds per call).
-
-    Best-of-`repeats` rather than the median, and CPU time (all threads of this process) next to
-    wall time, because on a shared machine both depend on what else runs; on an idle machine wall
-    time is at most the CPU time.
-    """
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    wall, cpu = [], []
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        jax.block_until_ready(fn(*args))
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return first, min(wall), min(cpu)
+from pe_mjx.bench import best_of
 
 
 def main() -> None:
@@ -101,8 +82,8 @@ def main() -> None:
 
         fwd = jax.jit(net.apply)
         bwd = jax.jit(jax.grad(loss))
-        c1, t_fwd, cpu_fwd = _time(fwd, (params, obs), args.repeats)
-        c2, t_bwd, cpu_bwd = _time(bwd, (params, obs, actions), args.repeats)
+        c1, t_fwd, cpu_fwd = best_of(fwd, params, obs, repeats=args.repeats)
+        c2, t_bwd, cpu_bwd = best_of(bwd, params, obs, actions, repeats=args.repeats)
         print(
             f"{label:10s} {nets.num_params(params):8d} {batch / t_fwd:9.0f} "
             f"{batch / cpu_fwd:10.0f} {batch / t_bwd:10.0f} {batch / cpu_bwd:10.0f} "

@@ -9,8 +9,8 @@ the default 10 steps/s pacing is met. Writes the results as JSON and one screens
     .venv/bin/python -m tools.bench_viewer                     # 24-6-12, 4 arenas, both backends
     .venv/bin/python -m tools.bench_viewer --backends kinematic --seconds 10
 
-Run it as a module from the checkout: it drives Chromium with the viewer tests' driver
-(tests/viewer/browser.py: Playwright on Debian's chromium).
+Run it as a module from the checkout: it drives Chromium with `pe_mjx.viewer.browser` (Playwright on
+Debian's chromium), the driver the viewer tests use too.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import numpy as np
 from PIL import Image
 
 from pe_mjx.viewer import start_viewer
-from tests.viewer.browser import Browser, find_chromium, scene_region, team_pixels
+from pe_mjx.viewer.browser import Browser, find_chromium, scene_region, team_pixels
 
 HIDE_NOTIFICATIONS = (
     "document.querySelectorAll('[class*=\"Notification-root\"]').forEach(e => e.remove()); true"

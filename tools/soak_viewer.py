@@ -3,7 +3,7 @@
 Starts two viewers as `pe-mjx view` subprocesses, as a person would: live arenas (``--preset``,
 ``--arenas``, kinematic backend, scripted teams, 10 steps/s) and a replay of a trajectory file
 (``--replay``; by default one that `pe-mjx evaluate` writes first). Opens three headless Chromium
-tabs (tests/viewer/browser.py: Playwright on Debian's chromium, software WebGL): two on the live
+tabs (pe_mjx/viewer/browser.py: Playwright on Debian's chromium, software WebGL): two on the live
 viewer, one on the replay. Then, every ``--interval`` seconds for ``--minutes``, it samples the
 resident memory (RSS) of each viewer process and of the browser's processes, each tab's
 JavaScript heap, the JavaScript errors each tab reported (console.error, uncaught exceptions, a
@@ -15,7 +15,8 @@ error or stalled, or a viewer died or did not stop cleanly.
     .venv/bin/python -m tools.soak_viewer       # 10 min: docs/soak_viewer.json, docs/figures/...
     .venv/bin/python -m tools.soak_viewer --minutes 0.1 --out /tmp/soak.json --figure /tmp/soak.png
 
-Run it as a module from the checkout (it imports the viewer tests' browser driver).
+It imports the browser driver it shares with the viewer tests from the package
+(`pe_mjx.viewer.browser`).
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ import numpy as np
 import psutil
 from playwright.sync_api import Error as PlaywrightError
 
-from tests.viewer.browser import Browser, BrowserError, find_chromium, scene_region, team_pixels
+from pe_mjx.viewer.browser import Browser, BrowserError, find_chromium, scene_region, team_pixels
 
 CLI = [sys.executable, "-m", "pe_mjx.cli"]
 MOVED_PIXELS = 50  # robot pixels that must change between two samples: the tab updated

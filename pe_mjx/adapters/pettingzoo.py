@@ -17,6 +17,11 @@ an agent after it is down, so it is simply not reported). `reset(seed=s)` draws 
 `jax.random.key` of a number drawn from `numpy.random.default_rng(s)`; later resets without a seed
 continue that stream.
 
+`step` refuses, with a `ValueError` naming the agent and before anything is stepped, an action
+for an agent that is not in `possible_agents`, an action that is not an integer index (a float,
+even a whole one, a bool, an array of more than one entry), one out of [0, n_actions), and one
+the agent's last "action_mask" forbids; actions given for agents that are gone are ignored.
+
 `reset` and `step` are jitted once per (config, backend) and shared by every instance.
 """
 
@@ -87,6 +92,7 @@ class PettingZooEnv(ParallelEnv):
         self.agents: list[str] = []
         self._np_rng = np.random.default_rng()
         self._state = None
+        self._masks: dict[str, np.ndarray] = {}  # team -> int8 [A, n_actions], the last ones
 
     def _team_space(self, team: str) -> gymnasium.spaces.Dict:
         size = max(sl.stop for sl, _ in self._layout[team].values())
@@ -122,22 +128,29 @@ class PettingZooEnv(ParallelEnv):
         self._state, (obs, masks) = self._reset(rng)
         self.agents = list(self.possible_agents)
         obs, masks = jax.device_get((obs, masks))
+        self._masks = masks
         return self._per_agent(self.agents, obs, masks), {a: {} for a in self.agents}
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if self._state is None:
             raise RuntimeError("call reset() before step()")
+        unknown = [a for a in actions if a not in self._team_index]
+        if unknown:
+            raise ValueError(
+                f"actions for unknown agents {unknown}; the agents are {self.possible_agents}"
+            )
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"no action for live agents {missing}")
         team_actions = {t: np.zeros(len(self._names[t]), np.int32) for t in TEAMS}
         for agent in self.agents:  # actions of agents that are gone are ignored
             team, i = self._team_index[agent]
-            team_actions[team][i] = int(actions[agent])
+            team_actions[team][i] = self._checked_action(agent, actions[agent])
         self._state, outputs, reward, active, flags = self._step(self._state, team_actions)
         (obs, masks), reward, active, (terminated, truncated) = jax.device_get(
             (outputs, reward, active, flags)
         )
+        self._masks = masks
         live = self.agents
         rewards, terminations, truncations = {}, {}, {}
         for agent in live:
@@ -148,6 +161,34 @@ class PettingZooEnv(ParallelEnv):
         observations = self._per_agent(live, obs, masks)
         self.agents = [a for a in live if not (terminations[a] or truncations[a])]
         return observations, rewards, terminations, truncations, {a: {} for a in live}
+
+    def _checked_action(self, agent: str, action: Any) -> int:
+        """The action index of `agent`, or a `ValueError` saying what is wrong with it."""
+        team, i = self._team_index[agent]
+        n = self.action_spaces[agent].n
+        value = np.asarray(action) if not isinstance(action, int | np.generic) else action
+        if isinstance(value, np.ndarray):
+            if value.size != 1:
+                raise ValueError(
+                    f"{agent}: the action must be one integer in [0, {n}), got an array of shape "
+                    f"{value.shape}"
+                )
+            value = value.reshape(()).item() if value.dtype.kind in "iu" else value.reshape(())
+        if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+            raise ValueError(
+                f"{agent}: the action must be an integer index in [0, {n}), got {action!r} "
+                f"({type(action).__name__})"
+            )
+        value = int(value)
+        if not 0 <= value < n:
+            raise ValueError(f"{agent}: action {value} is out of range [0, {n})")
+        if not self._masks[team][i][value]:
+            raise ValueError(
+                f"{agent}: action {value} is not allowed by its action_mask (its look-ahead arc "
+                f"hits the wall or an obstacle, or turns tighter than the minimum radius); "
+                f"choose one where obs[{agent!r}]['action_mask'] is 1"
+            )
+        return value
 
     def _per_agent(self, agents: list[str], obs: dict, masks: dict) -> dict[str, dict]:
         out = {}

@@ -29,6 +29,14 @@ a command change, the estimate mixes the two arcs until the window has passed.
 
 The policies see the newest pose of each robot; poses are not extrapolated to a common time, so
 feed poses at least as often as `act` is called.
+
+Poses the env could not be in are refused (`ValueError` naming the robot) before any policy
+runs, by the env's own geometry (`pe_mjx.stages.events`): a robot that is up must lie inside the
+arena clear of the wall (|p| + r < R), of every obstacle and of every other robot (a robot that is
+down counts as an obstacle); a robot that is down may lie at the wall or against what downed it,
+but not more than one control step at its top speed outside the arena. Such a pose means a
+localisation fault, a wrong frame (the arena centred on the origin, metres), or a robot that is
+down and should be marked so in `down`.
 """
 
 from __future__ import annotations
@@ -65,6 +73,16 @@ def arc_speed(times: np.ndarray, poses: np.ndarray) -> float:
     mid = poses[0, 2] + 0.5 * d_yaw
     along = (poses[1, 0] - poses[0, 0]) * np.cos(mid) + (poses[1, 1] - poses[0, 1]) * np.sin(mid)
     return float(along / (dt * np.sinc(0.5 * d_yaw / np.pi)))  # np.sinc(x) = sin(pi x) / (pi x)
+
+
+def _jitted(policy: PolicyFn) -> Callable[[Any, jax.Array], jax.Array]:
+    """`policy` compiled. `jax.jit` keys its cache on the callable, and a `pe_mjx.Policy` (a
+    frozen dataclass holding its variables in dicts) cannot be hashed: compile a closure."""
+
+    def call(obs: Any, rng: jax.Array) -> jax.Array:
+        return policy(obs, rng)
+
+    return jax.jit(call)
 
 
 @dataclasses.dataclass
@@ -118,7 +136,7 @@ class Controller:
         }
         self.actions = {t: action_table(config.team(t)) for t in TEAMS}
         self._observe: dict[int, Callable[[World], Any]] = {}  # by obstacle count
-        self._policies = {t: jax.jit(p) for t, p in self.policies.items()}
+        self._policies = {t: _jitted(p) for t, p in self.policies.items()}
         self._rng = jax.random.key(seed)
 
     # ------------------------------------------------------------------ poses in
@@ -189,6 +207,8 @@ class Controller:
         """
         poses, vel = self.poses(), self.velocities()
         active = np.concatenate([self._active(down, t) for t in TEAMS])
+        obstacles = self._obstacles(obstacles)
+        self._check_geometry(poses, active, obstacles)
         pose = np.concatenate([poses[t] for t in TEAMS]).astype(np.float32)
         vel = np.concatenate([vel[t] for t in TEAMS]) * active[:, None]
         n = len(active)
@@ -201,7 +221,7 @@ class Controller:
             cause=jnp.asarray(np.where(active, ACTIVE, OBSTACLE), jnp.int32),
             distance=jnp.zeros(n),
             captures=jnp.zeros(n, jnp.int32),
-            obstacles=jnp.asarray(self._obstacles(obstacles)),
+            obstacles=jnp.asarray(obstacles),
             step=jnp.zeros((), jnp.int32),
         )
 
@@ -215,6 +235,56 @@ class Controller:
         if d.shape != (n,):
             raise ValueError(f"down[{team!r}] must have {n} flags, got {d.shape[0]}")
         return ~d
+
+    def _check_geometry(
+        self, poses: dict[str, np.ndarray], active: np.ndarray, obstacles: np.ndarray
+    ) -> None:
+        """Refuses poses the env could not be in (module docstring): `ValueError` naming the
+        first robot outside the arena or overlapping the wall, an obstacle or another robot."""
+        names = [f"{t} {i}" for t in TEAMS for i in range(self.counts[t])]
+        pos = np.concatenate([poses[t][:, :2] for t in TEAMS])
+        radius = np.concatenate(
+            [np.full(self.counts[t], self.config.team(t).radius) for t in TEAMS]
+        )
+        reach = (
+            np.concatenate([np.full(self.counts[t], self.config.team(t).max_speed) for t in TEAMS])
+            * self.config.control_dt
+        )
+        arena = self.config.arena.radius
+        norm = np.hypot(pos[:, 0], pos[:, 1])
+
+        def at(i: int) -> str:
+            return f"{names[i]} at ({pos[i, 0]:.3g}, {pos[i, 1]:.3g})"
+
+        for i in range(len(names)):
+            if not active[i] and norm[i] - radius[i] - reach[i] >= arena:
+                raise ValueError(
+                    f"{at(i)} is outside the arena (radius {arena:g} m, centred on the origin); "
+                    f"poses are metres in the arena frame"
+                )
+            if active[i] and norm[i] + radius[i] >= arena:
+                where = "is outside the arena" if norm[i] >= arena else "touches the arena wall"
+                raise ValueError(
+                    f"{at(i)} {where} (radius {arena:g} m, centred on the origin): the env "
+                    f"would have it down; fix its pose or mark it in `down`"
+                )
+        if len(obstacles):
+            gap = np.hypot(*(pos[:, None, :] - obstacles[None, :, :2]).transpose(2, 0, 1))
+            gap = gap - radius[:, None] - obstacles[None, :, 2]
+            for i, k in np.argwhere((gap <= 0) & active[:, None])[:1]:
+                raise ValueError(
+                    f"{at(i)} overlaps obstacle {k} at ({obstacles[k, 0]:.3g}, "
+                    f"{obstacles[k, 1]:.3g}) radius {obstacles[k, 2]:.3g}: the env would have "
+                    f"it down; fix its pose or mark it in `down`"
+                )
+        gap = np.hypot(*(pos[:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
+        gap = gap - radius[:, None] - radius[None, :]
+        touching = (gap <= 0) & ~np.eye(len(names), dtype=bool) & (active[:, None] | active)
+        for i, j in np.argwhere(np.triu(touching))[:1]:
+            raise ValueError(
+                f"{at(i)} overlaps {at(j)} (bodies of radius {radius[i]:g} and {radius[j]:g} m): "
+                f"the env would have them down; fix their poses or mark them in `down`"
+            )
 
     @staticmethod
     def _obstacles(obstacles: Any) -> np.ndarray:
@@ -247,7 +317,18 @@ class Controller:
         out = {}
         for team, policy in self._policies.items():
             self._rng, rng = jax.random.split(self._rng)
-            actions = np.asarray(policy(obs[team], rng)).astype(np.int64)
+            actions = np.asarray(policy(obs[team], rng))
+            n_actions = len(self.actions[team][0])
+            if (
+                actions.shape != (self.counts[team],)
+                or not np.issubdtype(actions.dtype, np.integer)
+                or np.any((actions < 0) | (actions >= n_actions))
+            ):
+                raise ValueError(
+                    f"the {team} policy returned {actions.dtype}{list(actions.shape)} "
+                    f"{actions.tolist()}; expected {self.counts[team]} integer actions in "
+                    f"[0, {n_actions})"
+                )
             v, omega = (table[actions] for table in self.actions[team])
             active = self._active(down, team)
             out[team] = np.where(active[:, None], np.stack([v, omega], axis=-1), 0.0)

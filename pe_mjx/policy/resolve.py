@@ -22,7 +22,11 @@ from pe_mjx.policy.store import CheckpointError, restore_policy_params
 
 
 def resolve_policy(
-    spec: str | Path, team: str, env_config: EnvConfig | None = None, deterministic: bool = False
+    spec: str | Path,
+    team: str,
+    env_config: EnvConfig | None = None,
+    deterministic: bool = False,
+    fallback: bool = False,
 ) -> Policy:
     """Turns a policy spec into a ready policy for `team` in scenes of `env_config`.
 
@@ -33,6 +37,8 @@ def resolve_policy(
         with a `length_unit` reads lengths for its arena radius. None: a run plays the scene it
         was trained in (builtin policies need a scene).
       deterministic: greedy actions instead of sampling (learned policies).
+      fallback: when the run's latest checkpoint is damaged, play its latest intact one (with a
+        warning line) instead of raising the `DamagedCheckpointError` that names it.
 
     Raises:
       ValueError: an unknown team; `CheckpointError` (a ValueError) for a run that is missing,
@@ -45,7 +51,7 @@ def resolve_policy(
         if env_config is None:
             raise ValueError(f"the {name} policy needs the env config of the scene it plays")
         return make_policy(name, env_config, team)
-    restored = restore_policy_params(spec, team, env_config)
+    restored = restore_policy_params(spec, team, env_config, fallback=fallback)
     network, variables, net_config, env_config, trained, meta = restored
     counts = (trained.pursuer.num_agents, trained.evader.num_agents, trained.arena.num_obstacles)
     here = (env_config.pursuer.num_agents, env_config.evader.num_agents)
@@ -82,6 +88,7 @@ def load_policy(
     team: str,
     deterministic: bool = False,
     env_config: EnvConfig | None = None,
+    fallback: bool = False,
 ) -> Policy:
     """`resolve_policy` with the argument order of the package's first API (`pe_mjx.load_policy`).
 
@@ -94,12 +101,14 @@ def load_policy(
       env_config: the scene it will play, if given: checked for compatibility (the team's
         action count), and its arena radius is what a policy with a `length_unit` converts
         neighbour lengths with (default: the scene it was trained in).
+      fallback: when the run's latest checkpoint is damaged, play its latest intact one (with a
+        warning line) instead of raising the `DamagedCheckpointError` that names it.
 
     Returns:
       The team's `Policy`: jittable `policy(obs, rng) -> int32 [...]`, obs being that team's
       observation dict with any leading dims ([A, ...] for one arena).
     """
-    return resolve_policy(spec, team, env_config, deterministic)
+    return resolve_policy(spec, team, env_config, deterministic, fallback)
 
 
 __all__ = ["load_policy", "resolve_policy"]

@@ -1,7 +1,8 @@
 """The policies shipped inside the package (pe_mjx/assets/policies) and run-name resolution.
 
-A shipped policy is a run directory of `pe-mjx train` (metadata and policy items only) that
-installs with the package, so `load_policy("mix-20-5-8")`, `pe-mjx evaluate --pursuers
+A shipped policy is a packed policy (`pe_mjx.policy.packed`: the run's config and one
+`policy.msgpack`; older ones, a run directory with metadata and policy items only) that installs
+with the package, so `load_policy("mix-20-5-8")`, `pe-mjx evaluate --pursuers
 mix-20-5-8` and `pe-mjx view --pursuers mix-20-5-8` work from a wheel as from a checkout (where
 assets/policies/<name> links to the same files).
 """
@@ -10,6 +11,8 @@ from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
+
+from pe_mjx.policy.packed import PACKED_FILE
 
 
 def policies_dir() -> Path:
@@ -22,7 +25,13 @@ def shipped_names() -> tuple[str, ...]:
     root = policies_dir()
     if not root.is_dir():
         return ()
-    return tuple(sorted(p.name for p in root.iterdir() if (p / "checkpoints").is_dir()))
+    return tuple(
+        sorted(
+            p.name
+            for p in root.iterdir()
+            if (p / "checkpoints").is_dir() or (p / PACKED_FILE).is_file()
+        )
+    )
 
 
 def resolve_run(spec: str | Path) -> Path:

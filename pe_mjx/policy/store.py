@@ -9,16 +9,20 @@ A run directory holds `checkpoints/<iteration>/` with orbax items:
   * `train`: the whole train state, which only the trainer reads and writes
     (`pe_mjx.ppo.checkpoint`, which builds on this module's manager and metadata).
 Every read validates the metadata against its schema and sane bounds (`check_meta`) before
-anything is allocated from it.
+anything is allocated from it. A latest checkpoint that cannot be read back (truncated or altered
+files, invalid metadata, non-finite parameters) is one `DamagedCheckpointError` line naming the
+latest intact earlier checkpoint; `fallback=True` (`read_meta`, `restore_policy_params`,
+`pe_mjx.load_policy`) reads that one instead, with a warning line, and moves nothing.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Iterator
+import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, NamedTuple, NoReturn
+from typing import Any, NamedTuple, NoReturn, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +33,7 @@ from pe_mjx.config import EnvConfig
 from pe_mjx.experiment import ExperimentConfig, NetworkConfig
 from pe_mjx.names import TEAMS
 from pe_mjx.networks import make_network
+from pe_mjx.policy import packed
 from pe_mjx.policy.inference import dummy_obs, init_normalizer
 from pe_mjx.policy.shipped import resolve_run
 
@@ -46,9 +51,40 @@ class CheckpointError(ValueError):
     """A missing, unreadable or mismatched checkpoint."""
 
 
-def short_error(err: Exception, limit: int = 300) -> str:
-    text = f"{type(err).__name__}: {err}"
+class DamagedCheckpointError(CheckpointError):
+    """One checkpoint of a run cannot be read back (a truncated or altered file, metadata that
+    fails its checks, non-finite parameters), where an earlier one of the same run may be
+    intact. The readers that meet it at the latest checkpoint name the latest intact one and,
+    with `fallback=True`, use it."""
+
+
+DAMAGED_DIR = "damaged-checkpoints"
+"""Where `--resume-intact` (`pe_mjx.ppo.checkpoint.restore_train_state(fallback=True)`) moves
+damaged checkpoints, under the run directory: nothing is deleted."""
+
+
+def one_line(text: str, limit: int = 300) -> str:
+    """`text` with its whitespace (newlines of library messages too) collapsed, cut at `limit`."""
+    text = " ".join(text.split())
     return text if len(text) <= limit else text[:limit] + " ..."
+
+
+def intact_hint(run_dir: Path, step: int) -> str:
+    """What a message about a damaged latest checkpoint says about the intact `step`."""
+    return (
+        f"checkpoint {step} is the latest intact one: use it with `pe-mjx train --resume "
+        f"{run_dir} --resume-intact` or fallback=True in Python"
+    )
+
+
+def warn_fallback(err: Exception, step: int, doing: str) -> None:
+    """The one warning line of a reader that falls back to the intact checkpoint `step`."""
+    print(f"pe-mjx: warning: {err}; {doing} checkpoint {step} instead", file=sys.stderr)
+
+
+def short_error(err: Exception, limit: int = 300) -> str:
+    """`err` in one line: its type and message, whitespace collapsed, cut at `limit`."""
+    return one_line(f"{type(err).__name__}: {err}", limit)
 
 
 @contextlib.contextmanager
@@ -78,6 +114,11 @@ def manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:
 def latest_step(run_dir: Path) -> int:
     if not run_dir.exists():
         raise CheckpointError(f"no run at {run_dir}: the directory does not exist")
+    if packed.is_packed(run_dir):
+        raise CheckpointError(
+            f"{run_dir} is a packed policy ({packed.PACKED_FILE}): it plays, but holds no "
+            f"checkpoint to resume or ship from"
+        )
     if not (run_dir / CHECKPOINT_DIR).is_dir():
         raise CheckpointError(f"{run_dir} holds no checkpoints (no {CHECKPOINT_DIR}/ directory)")
     try:
@@ -95,6 +136,58 @@ def latest_step(run_dir: Path) -> int:
     return step
 
 
+def all_steps(run_dir: Path) -> list[int]:
+    """The run's complete checkpoints, newest first (`latest_step` has checked the directory)."""
+    try:
+        with quiet_logs(), manager(run_dir, create=False) as mngr:
+            return sorted(mngr.all_steps(), reverse=True)
+    except Exception as err:
+        raise CheckpointError(
+            f"{run_dir}: cannot list its checkpoints: {short_error(err)}"
+        ) from None
+
+
+T = TypeVar("T")
+
+
+def earlier_intact(run_dir: Path, damaged: int, read: Callable[[int], T]) -> tuple[int, T] | None:
+    """(step, what `read(step)` returned) of the newest checkpoint before `damaged` that `read`
+    reads without a `CheckpointError`; None if there is none."""
+    for step in all_steps(run_dir):
+        if step >= damaged:
+            continue
+        try:
+            return step, read(step)
+        except CheckpointError:
+            continue
+    return None
+
+
+def with_fallback(
+    run_dir: Path, step: int | None, read: Callable[[int], T], fallback: bool, doing: str
+) -> T:
+    """`read(step)`, the latest step when `step` is None. When the latest is damaged, a
+    `DamagedCheckpointError` that names the latest intact earlier one, or, with `fallback`,
+    a warning line and that one's reading."""
+    if step is not None:
+        return read(step)
+    latest = latest_step(run_dir)
+    try:
+        return read(latest)
+    except DamagedCheckpointError as err:
+        if not any(s < latest for s in all_steps(run_dir)):
+            raise  # the run's only checkpoint
+        found = earlier_intact(run_dir, latest, read)
+        if found is None:
+            raise DamagedCheckpointError(
+                f"{err}; no earlier checkpoint of {run_dir} is intact either"
+            ) from None
+        if not fallback:
+            raise DamagedCheckpointError(f"{err}; {intact_hint(run_dir, found[0])}") from None
+        warn_fallback(err, found[0], doing)
+        return found[1]
+
+
 def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -104,7 +197,7 @@ def check_meta(meta: Any, where: str) -> None:
     built from it; raises `CheckpointError` naming the first bad field."""
 
     def bad(message: str) -> NoReturn:
-        raise CheckpointError(f"{where} has invalid metadata: {message}")
+        raise DamagedCheckpointError(f"{where} has invalid metadata: {message}")
 
     if not isinstance(meta, dict):
         bad("not a JSON object")
@@ -162,16 +255,44 @@ def check_meta(meta: Any, where: str) -> None:
             bad("experiment.env differs from env_config")
 
 
-def read_meta(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
+def read_meta(
+    run_dir: str | Path, step: int | None = None, fallback: bool = False
+) -> dict[str, Any]:
     """The JSON metadata of the latest (or given) checkpoint, validated. `run_dir` may also be
-    a shipped policy's name (`pe_mjx.policy.shipped`)."""
+    a shipped policy's name (`pe_mjx.policy.shipped`). When the latest is damaged: a
+    `DamagedCheckpointError` naming the latest intact one, or, with `fallback`, that one's."""
     run_dir = resolve_run(run_dir)
-    step = latest_step(run_dir) if step is None else step
+    if packed.is_packed(run_dir):
+        meta = _read_packed(run_dir)[0]
+        if step is not None and step != meta["step"]:
+            raise CheckpointError(
+                f"{run_dir} is a packed policy of step {meta['step']}, not {step}"
+            )
+        return meta
+    return with_fallback(
+        run_dir, step, lambda s: _read_meta(run_dir, s), fallback, "reading the metadata of"
+    )
+
+
+def _read_packed(run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(validated metadata, team -> policy state dict) of a packed policy directory."""
+    try:
+        meta, policies = packed.read(run_dir)
+    except packed.PackedPolicyError as err:
+        raise DamagedCheckpointError(str(err)) from None
+    where = f"the packed policy {run_dir / packed.PACKED_FILE}"
+    check_meta(meta, where)
+    if not _is_int(meta.get("step")) or meta["step"] < 0:
+        raise DamagedCheckpointError(f"{where} has invalid metadata: step is missing")
+    return meta, policies
+
+
+def _read_meta(run_dir: Path, step: int) -> dict[str, Any]:
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
             meta = mngr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
     except Exception as err:  # orbax raises many types for a damaged step
-        raise CheckpointError(
+        raise DamagedCheckpointError(
             f"checkpoint {step} in {run_dir} is unreadable: {short_error(err)}"
         ) from None
     check_meta(meta, f"checkpoint {step} in {run_dir}")
@@ -231,10 +352,10 @@ def _check_stored_shapes(item_dir: Path, abstract: Any, where: str) -> None:
         with quiet_logs():
             stored = ocp.StandardCheckpointHandler().metadata(item_dir.absolute())
     except Exception as err:  # orbax raises many types for a damaged item
-        raise CheckpointError(f"{where} cannot be restored: {short_error(err)}") from None
+        raise DamagedCheckpointError(f"{where} cannot be restored: {short_error(err)}") from None
     problem = shape_mismatch(stored, abstract)
     if problem is not None:
-        raise CheckpointError(f"{where} does not match its network config: it {problem}")
+        raise DamagedCheckpointError(f"{where} does not match its network config: it {problem}")
 
 
 class RestoredPolicy(NamedTuple):
@@ -249,12 +370,40 @@ class RestoredPolicy(NamedTuple):
 
 
 def restore_policy_params(
-    run_dir: str | Path, team: str, scene: EnvConfig | None = None
+    run_dir: str | Path,
+    team: str,
+    scene: EnvConfig | None = None,
+    fallback: bool = False,
+    step: int | None = None,
 ) -> RestoredPolicy:
     """One team of a run (a run directory or a shipped policy's name), for playing in `scene`
-    (default: the scene it was trained in), whose action count for `team` must be the run's."""
+    (default: the scene it was trained in), whose action count for `team` must be the run's.
+
+    When the latest checkpoint is damaged (`DamagedCheckpointError`), the error names the latest
+    intact one; with `fallback` that one is played instead, with a warning line on stderr.
+    `step` picks a checkpoint of a run (default: the latest; a packed policy has one)."""
     run_dir = resolve_run(run_dir)
-    meta = read_meta(run_dir)
+    if team not in TEAMS:
+        raise CheckpointError(f"unknown team {team!r}; expected one of {TEAMS}")
+    if packed.is_packed(run_dir):
+        restored = _restore_policy(run_dir, team, scene, None)
+        if step is not None and step != restored.meta["step"]:
+            raise CheckpointError(f"{run_dir} is a packed policy of step {restored.meta['step']}")
+        return restored
+    return with_fallback(
+        run_dir, step, lambda s: _restore_policy(run_dir, team, scene, s), fallback, "playing"
+    )
+
+
+def _restore_policy(
+    run_dir: Path, team: str, scene: EnvConfig | None, step: int | None
+) -> RestoredPolicy:
+    """One team's policy from checkpoint `step` of a run, or (`step` None) a packed policy."""
+    state = None
+    if step is None:
+        meta, state = _read_packed(run_dir)
+    else:
+        meta = _read_meta(run_dir, step)
     if team not in TEAMS:
         raise CheckpointError(f"unknown team {team!r}; expected one of {TEAMS}")
     if team not in meta["network_configs"]:
@@ -283,23 +432,43 @@ def restore_policy_params(
         }
     )
     where = f"the {team} policy in {run_dir} (step {meta['step']})"
-    _check_stored_shapes(
-        run_dir / CHECKPOINT_DIR / str(meta["step"]) / f"policy_{team}", abstract, where
-    )
-    try:
-        with quiet_logs(), manager(run_dir, create=False) as mngr:
-            restored = mngr.restore(
-                meta["step"],
-                args=ocp.args.Composite(**{f"policy_{team}": ocp.args.StandardRestore(abstract)}),
-            )[f"policy_{team}"]
-    except Exception as err:
-        raise CheckpointError(f"{where} cannot be restored: {short_error(err)}") from None
+    if state is not None:
+        restored = _restore_packed(state.get(team), abstract, where)
+    else:
+        restored = _restore_item(run_dir, team, meta["step"], abstract, where)
     if not all_finite(restored):
-        raise CheckpointError(
+        raise DamagedCheckpointError(
             f"{where} holds non-finite parameters (NaN or inf): the run diverged; play an "
             f"earlier checkpoint or retrain"
         )
     return RestoredPolicy(network, restored, net_config, scene, trained, meta)
+
+
+def _restore_item(run_dir: Path, team: str, step: int, abstract: Any, where: str) -> Any:
+    """The team's orbax item of checkpoint `step`, its declared shapes checked first."""
+    _check_stored_shapes(run_dir / CHECKPOINT_DIR / str(step) / f"policy_{team}", abstract, where)
+    try:
+        with quiet_logs(), manager(run_dir, create=False) as mngr:
+            return mngr.restore(
+                step,
+                args=ocp.args.Composite(**{f"policy_{team}": ocp.args.StandardRestore(abstract)}),
+            )[f"policy_{team}"]
+    except Exception as err:
+        raise DamagedCheckpointError(f"{where} cannot be restored: {short_error(err)}") from None
+
+
+def _restore_packed(state: Any, abstract: Any, where: str) -> Any:
+    """The team's arrays of a packed policy, checked against `abstract` and placed like it."""
+    if state is None:
+        raise DamagedCheckpointError(f"{where} is missing from its packed file")
+    try:
+        restored = packed.restore(state, abstract)
+    except packed.PackedPolicyError as err:
+        raise DamagedCheckpointError(f"{where}: {err}") from None
+    problem = shape_mismatch(restored, abstract)
+    if problem is not None:
+        raise DamagedCheckpointError(f"{where} does not match its network config: it {problem}")
+    return jax.tree.map(lambda x, a: jax.device_put(x, a.sharding), restored, abstract)
 
 
 def all_finite(tree: Any) -> bool:

@@ -8,6 +8,12 @@ A run directory holds `checkpoints/<iteration>/` with three orbax items:
 This module writes all three and reads the train state back; everything that reads a policy is in
 the store. Orbax writes each step into a temporary directory and renames it when complete, so a
 kill during a save leaves the previous step loadable; the manager keeps the last `MAX_TO_KEEP`.
+
+A latest checkpoint damaged after the fact (a truncated or altered file) is one
+`DamagedCheckpointError` naming the latest intact earlier checkpoint; `fallback=True`
+(`pe-mjx train --resume RUN --resume-intact`) resumes from that one and moves the damaged later
+ones to `RUN/damaged-checkpoints/<step>` (kept, not deleted: the run's next saves reuse their
+step numbers).
 """
 
 from __future__ import annotations
@@ -30,16 +36,21 @@ from pe_mjx.names import TEAMS
 from pe_mjx.policy.shipped import resolve_run
 from pe_mjx.policy.store import (
     CHECKPOINT_DIR,
+    DAMAGED_DIR,
     FORMAT_VERSION,
     CheckpointError,
+    DamagedCheckpointError,
+    all_steps,
+    earlier_intact,
     everywhere,
+    intact_hint,
     latest_step,
     manager,
     quiet_logs,
     read_meta,
     short_error,
 )
-from pe_mjx.ppo.distributed import is_lost_process_error
+from pe_mjx.ppo.distributed import barrier, is_lost_process_error, is_primary
 from pe_mjx.ppo.train import Trainer, TrainState
 
 
@@ -252,7 +263,7 @@ def _restore_across_versions(
             if tuple(np.shape(saved[key])) != tuple(leaf.shape):
                 raise ValueError(f"leaf {key} has shape {np.shape(saved[key])}")
     except Exception as err:
-        raise CheckpointError(
+        raise DamagedCheckpointError(
             f"checkpoint {step} in {run_dir} cannot be restored: {short_error(first_error)} (nor "
             f"its learners alone: {short_error(err, 120)})"
         ) from None
@@ -272,16 +283,11 @@ def _restore_across_versions(
     return fresh.replace(teams=teams, rng=rng, iteration=iteration, env_steps=env_steps)
 
 
-def restore_train_state(run_dir: str | Path, trainer: Trainer) -> TrainState:
-    """The full train state of the latest checkpoint, placed with the trainer's shardings.
-
-    `trainer` is built from the run's saved experiment config.
-    """
-    run_dir = Path(run_dir)
-    step = latest_step(run_dir)
+def _restore_step(run_dir: Path, step: int, trainer: Trainer, abstract: Any) -> Any:
+    """The train state of checkpoint `step` as host arrays (`abstract`: its key-data shapes);
+    `DamagedCheckpointError` when its metadata or train item cannot be read back."""
+    read_meta(run_dir, step)
     _require_train_item(run_dir, step)
-    template = trainer.abstract_state()
-    abstract = jax.eval_shape(keys_to_data, template)
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
             restored = mngr.restore(
@@ -290,10 +296,116 @@ def restore_train_state(run_dir: str | Path, trainer: Trainer) -> TrainState:
                     train=ocp.args.StandardRestore(everywhere(_flat(abstract)))
                 ),
             ).train
-        restored = _unflat(abstract, jax.tree.map(np.asarray, restored))
+        return _unflat(abstract, jax.tree.map(np.asarray, restored))
     except Exception as err:
-        restored = _restore_across_versions(run_dir, step, trainer, abstract, err)
+        return _restore_across_versions(run_dir, step, trainer, abstract, err)
+
+
+def _set_aside(run_dir: Path, steps: list[int], err: Exception, intact: int) -> None:
+    """Moves the damaged checkpoints `steps` to `run_dir/damaged-checkpoints/` (process 0 of a
+    group; the others wait), with one warning line."""
+    barrier(f"pe-mjx/resume-intact-{intact}-found")
+    if is_primary():
+        target = run_dir / DAMAGED_DIR
+        target.mkdir(exist_ok=True)
+        for step in steps:
+            dest, n = target / str(step), 1
+            while dest.exists():
+                dest, n = target / f"{step}.{n}", n + 1
+            (run_dir / CHECKPOINT_DIR / str(step)).rename(dest)
+        print(
+            f"pe-mjx: warning: {err}; moved checkpoint(s) {', '.join(map(str, steps))} to "
+            f"{target} and resuming from checkpoint {intact}",
+            file=sys.stderr,
+        )
+    barrier(f"pe-mjx/resume-intact-{intact}-moved")
+
+
+def _fall_back(run_dir: Path, err: Exception, read: Any, fallback: bool) -> tuple[int, Any]:
+    """After the latest checkpoint failed with `err`: (step, reading) of the latest intact one,
+    the damaged ones set aside, with `fallback`; else the `DamagedCheckpointError` naming it."""
+    latest = latest_step(run_dir)
+    if not any(s < latest for s in all_steps(run_dir)):
+        raise err  # the run's only checkpoint
+    found = earlier_intact(run_dir, latest, read)
+    if found is None:
+        raise DamagedCheckpointError(
+            f"{err}; no earlier checkpoint of {run_dir} can be resumed either"
+        ) from None
+    if not fallback:
+        raise DamagedCheckpointError(f"{err}; {intact_hint(run_dir, found[0])}") from None
+    _set_aside(run_dir, [s for s in all_steps(run_dir) if s > found[0]], err, found[0])
+    return found
+
+
+def restore_train_state(
+    run_dir: str | Path, trainer: Trainer, fallback: bool = False
+) -> TrainState:
+    """The full train state of the latest checkpoint, placed with the trainer's shardings.
+
+    `trainer` is built from the run's saved experiment config. When the latest checkpoint is
+    damaged: a `DamagedCheckpointError` naming the latest intact one (one line), or, with
+    `fallback`, that one, the damaged later ones moved to `run_dir/damaged-checkpoints/`.
+    """
+    run_dir = Path(run_dir)
+    step = latest_step(run_dir)
+    _require_train_item(run_dir, step)
+    template = trainer.abstract_state()
+    abstract = jax.eval_shape(keys_to_data, template)
+
+    def read(s: int) -> Any:
+        return _restore_step(run_dir, s, trainer, abstract)
+
+    try:
+        restored = read(step)
+    except DamagedCheckpointError as err:
+        _, restored = _fall_back(run_dir, err, read, fallback)
     # Host arrays straight onto the trainer's mesh: in a group of processes each takes its shards
     # of the same arrays, so a checkpoint resumes on any number of processes and devices.
     placed = jax.device_put(restored, trainer.state_shardings(restored))
     return data_to_keys(template, placed)
+
+
+def resume_intact(run_dir: str | Path) -> int:
+    """For `pe-mjx train --resume RUN --resume-intact`, before anything reads the run's config:
+    when the latest checkpoint cannot be resumed (its metadata or its train state is damaged),
+    moves it and any other damaged later one to `RUN/damaged-checkpoints/` with a warning line,
+    so that the resume continues from the latest intact checkpoint. Returns that checkpoint's
+    step; `CheckpointError` when none is intact."""
+    from pe_mjx.experiment import ExperimentConfig
+
+    run_dir = Path(run_dir)
+
+    def read(step: int) -> None:
+        experiment = read_meta(run_dir, step).get("experiment")
+        try:
+            trainer = _shape_trainer(ExperimentConfig.from_dict(experiment))
+        except (TypeError, ValueError) as err:
+            raise DamagedCheckpointError(
+                f"checkpoint {step} in {run_dir} holds an invalid config: {err}"
+            ) from None
+        _restore_step(
+            run_dir, step, trainer, jax.eval_shape(keys_to_data, trainer.abstract_state())
+        )
+
+    step = latest_step(run_dir)
+    _require_train_item(run_dir, step)
+    try:
+        read(step)
+    except DamagedCheckpointError as err:
+        step, _ = _fall_back(run_dir, err, read, fallback=True)
+    return step
+
+
+def _shape_trainer(config: Any) -> Trainer:
+    """A trainer with the train state's shapes of `config`: a team played from another run is
+    stood in for by the scripted policy (opponents are not part of the train state)."""
+    from pe_mjx.names import BUILTIN_POLICIES
+    from pe_mjx.policy.scripted import make_policy
+
+    opponents = {
+        team: make_policy("scripted", config.env, team)
+        for team in TEAMS
+        if config.team(team).policy not in ("learn", *BUILTIN_POLICIES)
+    }
+    return Trainer(config, opponents=opponents)

@@ -28,6 +28,14 @@ waiting for the others at shutdown, and the coordinator's host then vanishes und
 Either way the last checkpoint is intact (orbax renames a step into place only when every
 process finished writing it).
 
+Joining fails fast: a process other than 0 first waits for the coordinator's port to accept a
+connection, at most `join_timeout_s` (`--join-timeout`, default `DEFAULT_JOIN_TIMEOUT_S`), and
+an address where nothing listens is a `ValueError` naming it (`pe-mjx train` prints it as its one
+line). jax itself, when the group does not form within its `initialization_timeout`, ends the
+process with a fatal log and a C++ stack trace; so while `jax.distributed.initialize` waits (the
+coordinator reachable, but not every process joining), a watchdog ends the process at the join
+timeout with one line instead (`JOIN_EXIT_CODE`), before jax's own deadline.
+
 Before the first collective of a program the processes meet at `barrier` (the coordination
 service's, with a long timeout): gloo's first collective gives up on a process that is more
 than 30 s late, which a process still compiling on a busy machine can be.
@@ -37,6 +45,10 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import socket
+import sys
+import threading
+import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 
@@ -55,6 +67,11 @@ FLAGS = {
 DEFAULT_HEARTBEAT_TIMEOUT_S = 100
 """jax's default: seconds without a heartbeat after which the coordinator declares a process
 lost (and jax ends the group)."""
+DEFAULT_JOIN_TIMEOUT_S = 60
+"""Seconds a process waits for the coordinator and for the group to form (`--join-timeout`)."""
+JOIN_EXIT_CODE = 2
+"""The exit code of a process whose group did not form within the join timeout."""
+_JAX_MARGIN_S = 30  # jax's own deadline comes this much after the watchdog's
 
 
 class ProcessLostError(RuntimeError):
@@ -70,6 +87,8 @@ class Group:
     num_processes: int
     process_id: int
     heartbeat_timeout_s: int = DEFAULT_HEARTBEAT_TIMEOUT_S
+    join_timeout_s: int = DEFAULT_JOIN_TIMEOUT_S
+    """Seconds to wait for the coordinator and the other processes when joining."""
 
 
 def _source(field: str, given: object) -> str:
@@ -82,6 +101,7 @@ def group_from(
     process_id: int | None = None,
     heartbeat_timeout_s: int = DEFAULT_HEARTBEAT_TIMEOUT_S,
     environ: Mapping[str, str] | None = None,
+    join_timeout_s: int = DEFAULT_JOIN_TIMEOUT_S,
 ) -> Group | None:
     """The group given by the flags, else the environment variables; None for a lone process
     (neither gives any setting). A missing or bad setting is a `ValueError` naming the flag or
@@ -124,22 +144,82 @@ def group_from(
         )
     if heartbeat_timeout_s < 1:
         raise ValueError(f"--heartbeat-timeout must be >= 1 s, got {heartbeat_timeout_s}")
-    return Group(address, n, i, heartbeat_timeout_s)
+    if join_timeout_s < 1:
+        raise ValueError(f"--join-timeout must be >= 1 s, got {join_timeout_s}")
+    return Group(address, n, i, heartbeat_timeout_s, join_timeout_s)
+
+
+def _joining(group: Group) -> str:
+    return (
+        f"--coordinator-address: process {group.process_id} of {group.num_processes} cannot "
+        f"join the group at {group.coordinator_address}"
+    )
+
+
+def wait_for_coordinator(group: Group, timeout_s: float) -> None:
+    """Waits until the coordinator's port accepts a TCP connection (process 0 may start a little
+    later than the others); `ValueError` naming the address when it does not within
+    `timeout_s`."""
+    host, _, port = group.coordinator_address.rpartition(":")
+    host = host.strip("[]")  # [::1]:1234
+    deadline = time.monotonic() + timeout_s
+    reason = "no answer"
+    while True:
+        left = deadline - time.monotonic()
+        try:
+            with socket.create_connection((host, int(port)), timeout=max(0.1, min(left, 5.0))):
+                return
+        except OSError as err:  # refused, unreachable, unknown host, timed out
+            reason = err.strerror or str(err) or type(err).__name__
+        if time.monotonic() + 0.5 >= deadline:
+            raise ValueError(
+                f"no coordinator answers at {group.coordinator_address} within {timeout_s:g} s "
+                f"({reason}); start process 0 first, check the address, or raise --join-timeout"
+            )
+        time.sleep(0.5)
 
 
 def initialize(group: Group) -> None:
     """Joins the group (blocks until every process has joined, `jax.distributed.initialize`).
-    Must run before anything asks JAX for a device."""
+    Must run before anything asks JAX for a device.
+
+    Within `group.join_timeout_s`: an unreachable coordinator is a `ValueError` (naming the
+    address); a group that does not form in time (the coordinator reachable, some process
+    missing) ends this process with one line on stderr and `JOIN_EXIT_CODE`, since jax's
+    blocked join cannot be interrupted and would otherwise abort with a C++ stack trace."""
     import jax
 
+    start = time.monotonic()
+    if group.process_id != 0:
+        wait_for_coordinator(group, group.join_timeout_s)
+    left = max(1.0, group.join_timeout_s - (time.monotonic() - start))
     # CPU processes need a collectives implementation to reach each other (GPUs use NCCL).
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
-    jax.distributed.initialize(
-        coordinator_address=group.coordinator_address,
-        num_processes=group.num_processes,
-        process_id=group.process_id,
-        heartbeat_timeout_seconds=group.heartbeat_timeout_s,
+    watchdog = threading.Timer(left, _join_timed_out, args=(group,))
+    watchdog.daemon = True
+    watchdog.start()
+    try:
+        jax.distributed.initialize(
+            coordinator_address=group.coordinator_address,
+            num_processes=group.num_processes,
+            process_id=group.process_id,
+            heartbeat_timeout_seconds=group.heartbeat_timeout_s,
+            initialization_timeout=int(left) + _JAX_MARGIN_S,
+        )
+    finally:
+        watchdog.cancel()
+
+
+def _join_timed_out(group: Group) -> None:
+    """The join watchdog: one line, and the process ends (jax's join cannot be interrupted)."""
+    print(
+        f"pe-mjx: error: {_joining(group)}: the group did not form within "
+        f"{group.join_timeout_s} s (--join-timeout): not every one of the {group.num_processes} "
+        f"processes joined",
+        file=sys.stderr,
+        flush=True,
     )
+    os._exit(JOIN_EXIT_CODE)
 
 
 BARRIER_TIMEOUT_S = 3600
@@ -216,8 +296,10 @@ def lost_process_guard() -> Iterator[None]:
 __all__ = [
     "BARRIER_TIMEOUT_S",
     "DEFAULT_HEARTBEAT_TIMEOUT_S",
+    "DEFAULT_JOIN_TIMEOUT_S",
     "ENV_VARS",
     "FLAGS",
+    "JOIN_EXIT_CODE",
     "Group",
     "ProcessLostError",
     "barrier",
@@ -226,4 +308,5 @@ __all__ = [
     "is_lost_process_error",
     "is_primary",
     "lost_process_guard",
+    "wait_for_coordinator",
 ]

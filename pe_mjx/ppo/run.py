@@ -1,25 +1,28 @@
 """The loop around the jitted training iteration: progress, TensorBoard and the compact curves
-(`curves.csv.gz`), evaluation, checkpoints."""
+(`curves.csv.gz`), evaluation, checkpoints.
+
+By role: `pe_mjx.ppo.run_files` writes config.json and reads a run's saved config back (for
+`--resume`), `pe_mjx.ppo.loggers` holds the progress columns and the loggers; this module starts
+a run (`train`) and runs its iterations (`_Loop`). Its names are re-exported here, where callers
+have always imported them from."""
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
-import subprocess
-import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import Progress
 
+from pe_mjx import interrupts
 from pe_mjx.config import EnvConfig
-from pe_mjx.experiment import RESUMABLE, ExperimentConfig
+from pe_mjx.experiment import ExperimentConfig
 from pe_mjx.names import TEAMS
 from pe_mjx.policy import store
 from pe_mjx.policy.core import Policy
@@ -27,94 +30,32 @@ from pe_mjx.policy.resolve import resolve_policy
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.curves import CurveLog
 from pe_mjx.ppo.distributed import barrier, is_primary, lost_process_guard
+from pe_mjx.ppo.loggers import NoWriter, closing, import_wandb, note, progress_columns, start_wandb
+from pe_mjx.ppo.run_files import (
+    CONFIG_FILE,
+    MAX_CONFIG_BYTES,
+    code_version,
+    resume_config,
+    saved_config,
+    write_config,
+)
 from pe_mjx.ppo.train import Trainer, TrainState
 
-CONFIG_FILE = "config.json"
-
-
-def code_version() -> dict[str, Any]:
-    """The package version and, in a git checkout, the commit and whether the tree was dirty."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        out: dict[str, Any] = {"pe_mjx": version("pe-mjx")}
-    except PackageNotFoundError:
-        out = {"pe_mjx": "unknown"}
-    root = Path(__file__).resolve().parents[2]
-    if (root / ".git").exists():
-        try:
-            commit = subprocess.run(
-                ["git", "-C", str(root), "rev-parse", "HEAD"],
-                capture_output=True,
-                text=True,
-                timeout=10,
-                check=True,
-            ).stdout.strip()
-            dirty = subprocess.run(
-                ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                capture_output=True,
-                text=True,
-                timeout=10,
-                check=True,
-            ).stdout.strip()
-            out.update(git_commit=commit, git_dirty=bool(dirty))
-        except (OSError, subprocess.SubprocessError):
-            pass
-    return out
-
-
-MAX_CONFIG_BYTES = 1 << 20  # an earlier config.json read back for its start history
-
-
-def _earlier_starts(run_dir: Path) -> list[dict[str, Any]]:
-    """The `starts` of the run's existing config.json (none if absent, too large or malformed:
-    the history is a record, never a reason to stop a run). A config.json written before
-    `starts` existed gives its one code version, as a start whose iteration is not known."""
-    path = run_dir / CONFIG_FILE
-    try:
-        if not path.is_file() or path.stat().st_size > MAX_CONFIG_BYTES:
-            return []
-        saved = json.loads(path.read_text())
-        starts = saved.get("starts")
-        if starts is None and isinstance(saved.get("code_version"), dict):
-            starts = [{"iteration": None, "code_version": saved["code_version"]}]
-    except (OSError, ValueError, AttributeError):
-        return []
-    if not isinstance(starts, list):
-        return []
-    known = [s for s in starts if isinstance(s, dict) and "iteration" in s]
-    return [s for s in known if s["iteration"] is None or isinstance(s["iteration"], int)]
-
-
-def _write_config(run_dir: Path, trainer: Trainer, start: int) -> None:
-    """`config.json`: the whole experiment (rerun it with `pe-mjx train --config`), what it
-    resolved to, and the code version; `starts` lists every (re)start of the run with the
-    iteration it started from (null: an earlier start not recorded as such) and the code
-    version it ran, so a run resumed on newer code keeps the record of the old."""
-    version = code_version()
-    earlier = _earlier_starts(run_dir) if start else []  # a fresh run starts a new history
-    starts = [s for s in earlier if s["iteration"] is None or s["iteration"] < start]
-    starts.append({"iteration": start, "code_version": version})
-    payload = {
-        "experiment": trainer.config.to_dict(),
-        "env_config": trainer.env_config.to_dict(),
-        "network_configs": {t: c.to_dict() for t, c in trainer.network_configs.items()},
-        "code_version": version,
-        "starts": starts,
-    }
-    tmp = run_dir / f"{CONFIG_FILE}.tmp"
-    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True))
-    tmp.replace(run_dir / CONFIG_FILE)
-
-
-def saved_config(run_dir: str | Path) -> ExperimentConfig:
-    """The experiment config saved with a run's latest checkpoint."""
-    try:
-        return ExperimentConfig.from_dict(checkpoint.read_experiment(run_dir))
-    except ValueError as err:
-        if isinstance(err, store.CheckpointError):
-            raise
-        raise store.CheckpointError(f"{run_dir} holds an invalid config: {err}") from None
+__all__ = [
+    "CONFIG_FILE",
+    "MAX_CONFIG_BYTES",
+    "Snapshot",
+    "TrainingError",
+    "code_version",
+    "initial_variables",
+    "learning_rates",
+    "resolve_opponents",
+    "resume_config",
+    "saved_config",
+    "snapshot",
+    "train",
+    "warm_start",
+]
 
 
 def _compiled_iteration(iteration_fn: Any, state: Any, start: int) -> Any:
@@ -124,26 +65,6 @@ def _compiled_iteration(iteration_fn: Any, state: Any, start: int) -> Any:
     compiled = iteration_fn.lower(state).compile()
     barrier(f"pe-mjx/compiled-iteration-{start}")
     return compiled
-
-
-def resume_config(
-    run_dir: str | Path, requested: ExperimentConfig | None = None
-) -> ExperimentConfig:
-    """The config a resumed run continues with: the saved one, with the `requested` changes to
-    the fields in `RESUMABLE` (budget, intervals) applied. Any other change is refused
-    (`ValueError` naming each field): it would change the game, the networks or PPO."""
-    saved = saved_config(run_dir)
-    if requested is None:
-        return saved
-    changed = saved.differences(requested)
-    refused = [f for f in changed if f not in RESUMABLE]
-    if refused:
-        raise ValueError(
-            f"--resume {run_dir} cannot change {', '.join(refused)}: a resumed run keeps its "
-            f"game, networks and PPO settings (only {', '.join(RESUMABLE)} may change); start a "
-            f"new run with another --out instead"
-        )
-    return saved.replace(**{f: getattr(requested, f) for f in changed})
 
 
 def resolve_opponents(config: ExperimentConfig) -> dict[str, Policy]:
@@ -262,7 +183,7 @@ def train(
     """
     run_dir = Path(out)
     if wandb_project is not None:
-        _import_wandb()  # without the extra, fail before any work
+        import_wandb()  # without the extra, fail before any work
     if not resume and checkpoint.has_complete_checkpoint(run_dir):
         raise ValueError(
             f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or "
@@ -317,126 +238,173 @@ def _train(
         state = checkpoint.restore_train_state(run_dir, trainer)
     else:
         state = warm_start(trainer, trainer.init(), starts)
-    last_saved = int(state.iteration) if resume else None
     primary = is_primary()  # in a group, process 0 alone writes files and shows progress
-    progress = progress and primary
     if primary:
-        _write_config(run_dir, trainer, int(state.iteration))
-    iteration_fn = jax.jit(
-        trainer.iteration,
-        donate_argnums=0,
-        out_shardings=(trainer.state_shardings(state), trainer.replicated),
-    )
-    evaluate_fn = None  # compiled at the first evaluation
-    writer = SummaryWriter(str(run_dir / "tb")) if primary else _NoWriter()
+        write_config(run_dir, trainer, int(state.iteration))
+    writer = SummaryWriter(str(run_dir / "tb")) if primary else NoWriter()
     curves = CurveLog(run_dir, int(state.env_steps) if resume else None) if primary else None
-    wandb_run = _start_wandb(wandb_project, run_dir, config) if wandb_project and primary else None
+    wandb_run = start_wandb(wandb_project, run_dir, config) if wandb_project and primary else None
     start = int(state.iteration)
-    total = config.num_iterations
-    end = total if stop_after is None else min(total, start + stop_after)
-    latest_eval: dict[str, float] = {}
-    columns = [
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed:,}/{task.total:,} env-steps"),
-        TextColumn("{task.fields[speed]}"),
-        TextColumn("{task.fields[success]}"),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-    ]
-    steps_done = int(state.env_steps)
-    # Wall time of this call's iterations and evaluations (compilation excluded), for
-    # `perf/eval_share`: the fraction of the run's time spent in the in-training evaluation.
-    spent = {"train": 0.0, "eval": 0.0}
+    end = (
+        config.num_iterations
+        if stop_after is None
+        else min(config.num_iterations, start + stop_after)
+    )
+    loop = _Loop(trainer, run_dir, primary, progress and primary, on_iteration)
+    loop.last_saved = start if resume else None
     # The loggers are closed also on Ctrl-C, so that the scalars logged so far reach the disk.
-    with _closing(writer, wandb_run, curves), Progress(*columns, disable=not progress) as bar:
-        task = bar.add_task(
+    with (
+        closing(writer, wandb_run, curves),
+        Progress(*progress_columns(), disable=not loop.progress) as bar,
+    ):
+        loop.sinks = (writer, curves, wandb_run)
+        return trainer, loop.run(state, start, end, bar)
+
+
+class _Loop:
+    """The iterations of one `train` call: each is run, checked for NaN and inf, timed,
+    evaluated when due, logged, shown and checkpointed when due."""
+
+    def __init__(
+        self,
+        trainer: Trainer,
+        run_dir: Path,
+        primary: bool,
+        progress: bool,
+        on_iteration: Callable[[Snapshot], None] | None,
+    ):
+        self.trainer, self.run_dir, self.primary, self.progress = (
+            trainer,
+            run_dir,
+            primary,
+            progress,
+        )
+        self.on_iteration = on_iteration
+        self.last_saved: int | None = None
+        self.sinks: tuple[Any, CurveLog | None, Any] = (NoWriter(), None, None)
+        self.evaluate_fn = None  # compiled at the first evaluation
+        self.latest_eval: dict[str, float] = {}
+        # Wall time of this call's iterations and evaluations (compilation excluded), for
+        # `perf/eval_share`: the fraction of the run's time spent in the in-training evaluation.
+        self.spent = {"train": 0.0, "eval": 0.0}
+
+    def run(self, state: TrainState, start: int, end: int, bar: Progress) -> TrainState:
+        trainer, config = self.trainer, self.trainer.config
+        iteration_fn = jax.jit(
+            trainer.iteration,
+            donate_argnums=0,
+            out_shardings=(trainer.state_shardings(state), trainer.replicated),
+        )
+        self.bar = bar
+        self.task = bar.add_task(
             config.preset,
-            total=total * config.steps_per_iteration,
-            completed=steps_done,
+            total=config.num_iterations * config.steps_per_iteration,
+            completed=int(state.env_steps),
             speed="",
             success="",
         )
         # The first iteration compiles (a minute for the paper's scenes on a CPU).
-        bar.update(task, description=f"{config.preset} compiling...")
-        if not progress and primary and start < end:
-            _note(f"{config.preset}: compiling the training iteration...")
+        bar.update(self.task, description=f"{config.preset} compiling...")
+        if not self.progress and self.primary and start < end:
+            note(f"{config.preset}: compiling the training iteration...")
         if start < end:
             iteration_fn = _compiled_iteration(iteration_fn, state, start)
-        tic = time.perf_counter()
+        self.tic = time.perf_counter()
         for it in range(start, end):
+            interrupts.check()  # a safe point between compiled iterations (Ctrl-C)
             state, metrics = iteration_fn(state)
             if it == start:
-                bar.update(task, description=config.preset)
-            host = {k: float(v) for k, v in jax.device_get(metrics).items()}
-            bad = [k for k, v in host.items() if k.startswith("loss/") and not np.isfinite(v)]
-            if bad or not bool(_params_finite(state.teams)):
-                kept = (
-                    "no checkpoint was saved"
-                    if last_saved is None
-                    else f"the last good checkpoint (iteration {last_saved}) is kept"
-                )
-                raise TrainingError(
-                    f"training diverged at iteration {it + 1}: "
-                    f"{', '.join(bad) or 'the parameters'} became NaN or inf; {kept}. Try a lower "
-                    f"--ppo.learning-rate or --ppo.max-grad-norm"
-                )
-            toc = time.perf_counter()
-            speed = config.steps_per_iteration / (toc - tic)
-            if it > start:  # the first iteration of a call compiles
-                spent["train"] += toc - tic
-            tic = toc
-            host["perf/env_steps_per_s"] = speed
-            n_agents = trainer.env_config.num_agents
-            host["perf/agent_steps_per_s"] = speed * n_agents
-            done_iters = it + 1
-            for team, lr in learning_rates(trainer, done_iters).items():
-                host[f"ppo/{team}/learning_rate"] = lr
-            if config.eval_every and (done_iters % config.eval_every == 0 or done_iters == total):
-                at = np.int32(done_iters)  # the evaluation's key is folded from it (in the jit)
-                if evaluate_fn is None:  # compiled apart, so that its time is not counted
-                    message = f"{config.preset}: compiling the evaluation..."
-                    bar.update(task, description=message)
-                    if not progress and primary:
-                        _note(message)
-                    evaluate_fn = (
-                        jax.jit(_evaluate_at(trainer), out_shardings=trainer.replicated)
-                        .lower(state, at)
-                        .compile()
-                    )
-                    barrier(f"pe-mjx/compiled-evaluation-{done_iters}")
-                eval_tic = time.perf_counter()
-                latest_eval = {
-                    k: float(v) for k, v in jax.device_get(evaluate_fn(state, at)).items()
-                }
-                host.update(latest_eval)
-                bar.update(task, description=config.preset)
-                tic = time.perf_counter()  # evaluation time is not training throughput
-                spent["eval"] += tic - eval_tic
-                if spent["train"] > 0:
-                    host["perf/eval_share"] = spent["eval"] / (spent["eval"] + spent["train"])
-            env_steps = int(state.env_steps)
-            for k, v in host.items():
-                if np.isfinite(v):
-                    writer.add_scalar(k, v, env_steps)
-            if curves is not None:
-                curves.add(env_steps, host)
-            if wandb_run is not None:
-                wandb_run.log({k: v for k, v in host.items() if np.isfinite(v)}, step=env_steps)
-            success = latest_eval.get("eval/pursuer_vs_scripted/success_rate")
-            bar.update(
-                task,
-                completed=env_steps,
-                speed=f"{speed:,.0f} env-steps/s",
-                success="" if success is None else f"success vs scripted {success:.2f}",
+                bar.update(self.task, description=config.preset)
+            state = self._after(state, metrics, it, start, end)
+        return state
+
+    def _after(self, state: TrainState, metrics: Any, it: int, start: int, end: int) -> TrainState:
+        """Everything after iteration `it` ran: checks, timing, evaluation, logs, checkpoint."""
+        trainer, config = self.trainer, self.trainer.config
+        host = {k: float(v) for k, v in jax.device_get(metrics).items()}
+        self._check_finite(host, state, it)
+        toc = time.perf_counter()
+        speed = config.steps_per_iteration / (toc - self.tic)
+        if it > start:  # the first iteration of a call compiles
+            self.spent["train"] += toc - self.tic
+        self.tic = toc
+        host["perf/env_steps_per_s"] = speed
+        host["perf/agent_steps_per_s"] = speed * trainer.env_config.num_agents
+        done_iters = it + 1
+        for team, lr in learning_rates(trainer, done_iters).items():
+            host[f"ppo/{team}/learning_rate"] = lr
+        total = config.num_iterations
+        if config.eval_every and (done_iters % config.eval_every == 0 or done_iters == total):
+            host.update(self._evaluate(state, done_iters))
+        env_steps = int(state.env_steps)
+        self._log(host, env_steps)
+        success = self.latest_eval.get("eval/pursuer_vs_scripted/success_rate")
+        self.bar.update(
+            self.task,
+            completed=env_steps,
+            speed=f"{speed:,.0f} env-steps/s",
+            success="" if success is None else f"success vs scripted {success:.2f}",
+        )
+        if self.on_iteration is not None:
+            self.on_iteration(snapshot(trainer, state, host))
+        if done_iters % config.checkpoint_every == 0 or done_iters == end:
+            curves = self.sinks[1]
+            if curves is not None:  # first: the curves never lag their checkpoint
+                curves.flush()
+            self.last_saved = checkpoint.save(self.run_dir, trainer, state)
+        return state
+
+    def _check_finite(self, host: dict[str, float], state: TrainState, it: int) -> None:
+        """`TrainingError` when a loss or a parameter became NaN or inf (nothing is saved)."""
+        bad = [k for k, v in host.items() if k.startswith("loss/") and not np.isfinite(v)]
+        if not bad and bool(_params_finite(state.teams)):
+            return
+        kept = (
+            "no checkpoint was saved"
+            if self.last_saved is None
+            else f"the last good checkpoint (iteration {self.last_saved}) is kept"
+        )
+        raise TrainingError(
+            f"training diverged at iteration {it + 1}: "
+            f"{', '.join(bad) or 'the parameters'} became NaN or inf; {kept}. Try a lower "
+            f"--ppo.learning-rate or --ppo.max-grad-norm"
+        )
+
+    def _evaluate(self, state: TrainState, done_iters: int) -> dict[str, float]:
+        """The in-training evaluation's scalars (its time is not training throughput)."""
+        trainer, preset = self.trainer, self.trainer.config.preset
+        at = np.int32(done_iters)  # the evaluation's key is folded from it (in the jit)
+        if self.evaluate_fn is None:  # compiled apart, so that its time is not counted
+            message = f"{preset}: compiling the evaluation..."
+            self.bar.update(self.task, description=message)
+            if not self.progress and self.primary:
+                note(message)
+            self.evaluate_fn = (
+                jax.jit(_evaluate_at(trainer), out_shardings=trainer.replicated)
+                .lower(state, at)
+                .compile()
             )
-            if on_iteration is not None:
-                on_iteration(snapshot(trainer, state, host))
-            if done_iters % config.checkpoint_every == 0 or done_iters == end:
-                if curves is not None:  # first: the curves never lag their checkpoint
-                    curves.flush()
-                last_saved = checkpoint.save(run_dir, trainer, state)
-    return trainer, state
+            barrier(f"pe-mjx/compiled-evaluation-{done_iters}")
+        eval_tic = time.perf_counter()
+        found = {k: float(v) for k, v in jax.device_get(self.evaluate_fn(state, at)).items()}
+        self.latest_eval = found
+        self.bar.update(self.task, description=preset)
+        self.tic = time.perf_counter()
+        self.spent["eval"] += self.tic - eval_tic
+        if self.spent["train"] > 0:
+            share = self.spent["eval"] / (self.spent["eval"] + self.spent["train"])
+            found = {**found, "perf/eval_share": share}
+        return found
+
+    def _log(self, host: dict[str, float], env_steps: int) -> None:
+        writer, curves, wandb_run = self.sinks
+        for k, v in host.items():
+            if np.isfinite(v):
+                writer.add_scalar(k, v, env_steps)
+        if curves is not None:
+            curves.add(env_steps, host)
+        if wandb_run is not None:
+            wandb_run.log({k: v for k, v in host.items() if np.isfinite(v)}, step=env_steps)
 
 
 def _evaluate_at(trainer: Trainer) -> Callable[[TrainState, jax.Array], dict[str, jax.Array]]:
@@ -450,60 +418,9 @@ def _evaluate_at(trainer: Trainer) -> Callable[[TrainState, jax.Array], dict[str
     return evaluate
 
 
-class _NoWriter:
-    """The TensorBoard writer of a process other than 0 in a group: it writes nothing."""
-
-    def add_scalar(self, *args: Any) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-@contextlib.contextmanager
-def _closing(writer: Any, wandb_run: Any, curves: CurveLog | None) -> Iterator[None]:
-    """Closes the TensorBoard writer and the W&B run, and writes the curves, however the block
-    ends."""
-    try:
-        yield
-    finally:
-        writer.close()
-        if curves is not None:
-            curves.flush()
-        if wandb_run is not None:
-            wandb_run.finish()
-
-
-def _note(message: str) -> None:
-    """One line on stderr, for runs without the progress bar (logs, `--no-progress`)."""
-    print(message, file=sys.stderr, flush=True)
-
-
 def learning_rates(trainer: Trainer, iterations: int) -> dict[str, float]:
     """Each learned team's learning rate after `iterations` iterations (its schedule there)."""
     ppo = trainer.config.ppo
     updates = iterations * ppo.update_epochs * ppo.num_minibatches
     rates = {t: trainer.schedule(t) for t in trainer.learned}
     return {t: float(r(updates) if callable(r) else r) for t, r in rates.items()}
-
-
-def _import_wandb() -> Any:
-    """The `wandb` module (ValueError without the extra)."""
-    try:
-        import wandb
-    except ImportError:
-        raise ValueError(
-            "--wandb-project needs Weights & Biases: pip install 'pe-mjx[wandb]'"
-        ) from None
-    return wandb
-
-
-def _start_wandb(project: str, run_dir: Path, config: ExperimentConfig) -> Any:
-    """A Weights & Biases run logging beside TensorBoard (ValueError without the extra)."""
-    return _import_wandb().init(
-        project=project,
-        name=run_dir.name,
-        dir=str(run_dir),
-        config=config.to_dict(),
-        resume="allow",
-    )

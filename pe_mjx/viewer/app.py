@@ -25,35 +25,19 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from pe_mjx.config import EnvConfig, get_preset
-from pe_mjx.names import BACKENDS, TEAMS
-from pe_mjx.policy.core import Policy
+from pe_mjx.config import get_preset
+from pe_mjx.names import BACKENDS
 from pe_mjx.policy.scripted import POLICIES
 from pe_mjx.trajectory import Trajectory
-from pe_mjx.viewer.guard import (
-    MAX_ARENAS,
-    SEED_MAX,
-    GuiGuard,
-    PolicyAccess,
-    check_address,
-)
+from pe_mjx.viewer.commands import SceneCommands
+from pe_mjx.viewer.guard import MAX_ARENAS, SEED_MAX, GuiGuard, PolicyAccess, check_address
 from pe_mjx.viewer.gui import build_controls, counters_markdown
-from pe_mjx.viewer.live import LiveRun, PolicyError, load_team_policy
 from pe_mjx.viewer.options import ViewerOptions
-from pe_mjx.viewer.replay import (
-    ReplaySource,
-    export_trajectory,
-    timestamp,
-    unique_stem,
-    write_recording,
-)
-from pe_mjx.viewer.scene import (
-    ArenaScene,
-    TrailBuffer,
-    configure_lighting,
-)
+from pe_mjx.viewer.recording import RecordingCommands
+from pe_mjx.viewer.replay import ReplaySource
+from pe_mjx.viewer.scene import ArenaScene, configure_lighting
+from pe_mjx.viewer.sources import LiveSource
+from pe_mjx.viewer.training_view import TrainingView
 
 COUNTER_PERIOD = 0.25
 """Seconds between counter-table refreshes."""
@@ -61,44 +45,13 @@ MAX_ERRORS = 1000
 """Error messages kept in `Viewer.errors` (a hostile client may send many bad values)."""
 
 
-class LiveSource:
-    """A `LiveRun` as a frame source, with its trail buffer."""
+class Viewer(SceneCommands, RecordingCommands, TrainingView):
+    """The running app. Build it with `start_viewer`; stop it with `stop()`.
 
-    kind = "live"
-
-    def __init__(self, run: LiveRun, trail_length: int):
-        self.run = run
-        self.config = run.config
-        self.num_arenas = run.num_arenas
-        self.trails = TrailBuffer(trail_length)
-        self.trails.push(run.positions())
-
-    @property
-    def at_end(self) -> bool:
-        return self.run.done
-
-    def advance(self) -> bool:
-        self.run.step()
-        self.trails.push(self.run.positions())
-        return True
-
-    def reset(self, seed: int) -> None:
-        self.run.reset(seed)
-        self.trails.clear()
-        self.trails.push(self.run.positions())
-
-    def frame(self):
-        return self.run.frame()
-
-    def trail(self) -> np.ndarray | None:
-        return self.trails.array()
-
-    def counters(self) -> list[dict[str, Any]]:
-        return self.run.counters()
-
-
-class Viewer:
-    """The running app. Build it with `start_viewer`; stop it with `stop()`."""
+    Its loop-thread commands live in mixins by role (`commands.SceneCommands`: playback, scene,
+    policies, attention; `recording.RecordingCommands`; `training_view.TrainingView`), so that
+    this class keeps the threads, the public surface, the GUI wiring and the loop; a caller
+    still sees one class with every method it had."""
 
     def __init__(
         self,
@@ -362,286 +315,34 @@ class Viewer:
         if self.options.verbose:
             print(f"pe-mjx view: client {client.client_id} left ({self.num_clients()} open)")
 
-    # ------------------------------------------------------------------ commands (loop thread)
-
-    def _set_playing(self, playing: bool) -> None:
-        self.playing = playing
-        self._last_frame_time = None
-
-    def _request_step(self) -> None:
-        self.playing = False
-        self._step_once = True
-
-    def _read_speed(self) -> None:
-        self.speed = 0.0 if self.gui.max_speed.value else float(self.gui.speed.value)
-
-    def _apply_trails(self) -> None:
-        if self.scene is not None:
-            self.scene.set_trails_visible(bool(self.gui.trails.value))
-            self._push_frame()
-
-    def _seek(self, index: int) -> None:
-        if isinstance(self.source, ReplaySource):
-            self.source.seek(index)
-            self._push_frame()
-
-    def _reset(self, seed: int) -> None:
-        if isinstance(self.source, ReplaySource):
-            self.source.seek(0)
-        elif isinstance(self.source, LiveSource):
-            self.source.reset(seed)
-            self.gui.seed.value = seed
-            self._status(self._live_status())
-        self._hold_until = None
-        self._push_frame()
-
-    def _live_status(self) -> str:
-        assert isinstance(self.source, LiveSource)
-        run = self.source.run
-        pols = ", ".join(f"{t}s: `{run.policies[t].source}`" for t in TEAMS)
-        return (
-            f"**{self.mode}** `{run.config.name}` x{run.num_arenas}, {run.backend}, "
-            f"seed {run.seed}; {pols}"
-        )
-
-    def _policies(
-        self, config: EnvConfig, specs: dict[str, str], access: PolicyAccess | None
-    ) -> dict[str, Policy]:
-        """Each team's policy; a team whose policy fails falls back to scripted (error shown)."""
-        out = {}
-        deterministic = bool(self.gui.deterministic.value)
-        for team in TEAMS:
-            try:
-                out[team] = load_team_policy(specs[team], config, team, deterministic, access)
-            except PolicyError as err:
-                self._report(f"{err} (the {team}s play scripted instead)")
-                out[team] = load_team_policy("scripted", config, team)
-        return out
-
-    def _start_live(self) -> None:
-        o = self.options
-        config = get_preset(o.preset)
-        self._status(f"compiling `{config.name}` ({o.backend})...")
-        policies = self._policies(config, {"pursuer": o.pursuers, "evader": o.evaders}, None)
-        run = LiveRun(config, policies, o.arenas, o.backend, o.seed)
-        self._set_source(LiveSource(run, o.trail_length))
-        self._status(self._live_status())
-
-    def _scene_config(self) -> EnvConfig:
-        base = get_preset(self.gui.preset.value)
-        counts = (
-            int(self.gui.pursuers.value),
-            int(self.gui.evaders.value),
-            int(self.gui.obstacles.value),
-        )
-        have = (base.pursuer.num_agents, base.evader.num_agents, base.arena.num_obstacles)
-        return base if counts == have else base.with_counts(*counts)
-
-    def _apply_scene(self) -> None:
-        config = self._scene_config()  # ValueError (cannot be placed) is reported by the loop
-        arenas = int(self.gui.arenas.value)
-        backend = str(self.gui.backend.value)
-        seed = int(self.gui.seed.value)
-        if arenas < 1:
-            raise ValueError(f"arenas must be >= 1, got {arenas}")
-        specs = {
-            "pursuer": str(self.gui.pursuer_policy.value),
-            "evader": str(self.gui.evader_policy.value),
-        }
-        self._status(f"compiling `{config.name}` ({backend})...")
-        policies = self._policies(config, specs, self.policy_access)
-        run = LiveRun(config, policies, arenas, backend, seed)
-        self._set_source(LiveSource(run, self.options.trail_length))
-        self._clear_error()
-        self._status(self._live_status())
-
-    def _load_policies(self) -> None:
-        if not isinstance(self.source, LiveSource):
-            return
-        run = self.source.run
-        specs = {
-            "pursuer": str(self.gui.pursuer_policy.value),
-            "evader": str(self.gui.evader_policy.value),
-        }
-        deterministic = bool(self.gui.deterministic.value)
-        failed = False
-        for team in TEAMS:
-            current = run.policies[team]
-            same_mode = not current.learned or current.deterministic == deterministic
-            if specs[team].strip() == current.source and same_mode:
-                continue  # unchanged: no reload, no recompilation
-            try:
-                policy = load_team_policy(
-                    specs[team], run.config, team, deterministic, self.policy_access
-                )
-            except PolicyError as err:
-                self._report(f"{err} (the {team}s keep `{run.policies[team].source}`)")
-                failed = True
-                continue
-            self._status(f"compiling the {team} policy...")
-            run.set_policy(team, policy)
-        if not failed:
-            self._clear_error()
-        self._status(self._live_status())
-        self._push_frame()
-
-    def _set_source(self, source: LiveSource | ReplaySource) -> None:
-        rebuild = (
-            self.scene is None
-            or self.scene.config != source.config
-            or self.scene.num_arenas != source.num_arenas
-        )
-        self.source = source
-        if rebuild:
-            if self.scene is not None:
-                self.scene.remove()
-            self.scene = ArenaScene(self.server, source.config, source.num_arenas)
-            self.scene.set_trails_visible(bool(self.gui.trails.value))
-            position, look_at = self.scene.camera_pose()
-            self.server.initial_camera.position = position
-            self.server.initial_camera.look_at = look_at
-            for client in self.server.get_clients().values():
-                client.camera.position = position
-                client.camera.look_at = look_at
-        if isinstance(source, ReplaySource):
-            self.gui.frame.max = max(1, source.num_frames - 1)
-            self._status(
-                f"**replay** `{source.config.name}` x{source.num_arenas}, "
-                f"{source.num_frames} frames"
-            )
-        self.gui.att_arena.max = source.num_arenas - 1
-        self._hold_until = None
-        self._push_frame()
-        self._ready.set()
-
-    # -- attention
-
-    def _attention(self) -> Any:
-        if not isinstance(self.source, LiveSource) or not self.gui.att_show.value:
-            self.gui.att_info.content = ""
-            return None
-        run = self.source.run
-        team = str(self.gui.att_team.value)
-        arena = int(np.clip(int(self.gui.att_arena.value), 0, run.num_arenas - 1))
-        agent = int(np.clip(int(self.gui.att_agent.value), 0, run.config.team(team).num_agents - 1))
-        overlay = run.attention(team, arena, agent)
-        if overlay is None:
-            label = run.policies[team].source
-            self.gui.att_info.content = (
-                f"The {team} policy `{label}` has no attention weights (only MIX policies do)."
-            )
-            return None
-        order = np.argsort(-overlay.weights)[:5]
-        counts: dict[str, int] = {}
-        names = []
-        for kind in overlay.kinds:
-            names.append(f"{kind[:-1]} {counts.get(kind, 0)}")
-            counts[kind] = counts.get(kind, 0) + 1
-        own = run.own_attention(team, arena, agent)
-        top = ", ".join(f"{names[i]}: {overlay.weights[i]:.2f}" for i in order)
-        self.gui.att_info.content = f"{team} {agent} in arena {arena}; self {own:.2f}; {top}"
-        return overlay
-
-    # -- recording
-
-    def _toggle_recording(self) -> None:
-        if self._serializer is None:
-            self._serializer = self.server.get_scene_serializer()
-            self._last_record_time = time.monotonic()
-            self.gui.record.label = "Stop recording"
-            self.gui.record_info.content = "recording..."
-            return
-        serializer, self._serializer = self._serializer, None
-        self.gui.record.label = "Start recording"
-        serializer.insert_sleep(max(time.monotonic() - self._last_record_time, 0.0))
-        data = serializer.serialize()
-        stem = unique_stem(Path(self.options.record_dir), f"pe-mjx-{timestamp()}")
-        paths = write_recording(stem, data)
-        self._saved(paths)
-
-    def _export_replay(self) -> None:
-        if not isinstance(self.source, ReplaySource):
-            return
-        self.gui.record_info.content = "exporting..."
-        stem = unique_stem(Path(self.options.record_dir), f"pe-mjx-replay-{timestamp()}")
-        speed = self.speed / (1.0 / self.source.config.control_dt) if self.speed > 0 else 4.0
-        paths = export_trajectory(self.source.traj, stem, speed, self.options.trail_length)
-        self._saved(paths)
-
-    def _saved(self, paths: tuple[Path, Path]) -> None:
-        self.recordings.extend(paths)
-        text = " and ".join(f"`{p}`" for p in paths)
-        self.gui.record_info.content = f"saved {text}"
-        if self.options.verbose:
-            print(f"pe-mjx view: saved {paths[0]} and {paths[1]}", flush=True)
-        for client in self.server.get_clients().values():
-            client.add_notification("Recording saved", text, auto_close_seconds=10.0)
-
-    # -- training view
-
-    def training_update(self, snapshot: Any) -> None:
-        """`train(on_iteration=...)` callback: show the latest policies of a training run.
-
-        `snapshot` is a `pe_mjx.ppo.run.Snapshot` (host copies, taken by the trainer's loop); the
-        loop thread builds the live run from the first one and swaps in the learned variables of
-        the later ones (no recompilation).
-        """
-        info = {"iteration": snapshot.iteration, "env_steps": snapshot.env_steps}
-        info.update(snapshot.metrics)
-        if not self._training_started:
-            self._training_started = True
-            self.post(lambda: self._start_training(snapshot))
-        else:
-            self.post(lambda: self._update_training(snapshot.policies))
-        self.post(lambda: self._show_training(info))
-
-    def _start_training(self, snapshot: Any) -> None:
-        config = snapshot.env_config
-        self._status(f"compiling `{config.name}` ({snapshot.backend})...")
-        run = LiveRun(
-            config, snapshot.policies, self.options.arenas, snapshot.backend, self.options.seed
-        )
-        self._set_source(LiveSource(run, self.options.trail_length))
-        self._status(self._live_status())
-
-    def _update_training(self, policies: dict[str, Policy]) -> None:
-        if isinstance(self.source, LiveSource):
-            for team, policy in policies.items():
-                if policy.learned:
-                    self.source.run.set_params(team, policy.variables)
-
-    def _show_training(self, info: dict[str, Any]) -> None:
-        lines = [f"**training** iteration {info['iteration']}, {info['env_steps']:,} env steps"]
-        for key in sorted(info):
-            if key.startswith(("eval/", "perf/env_steps")) and np.isfinite(info[key]):
-                lines.append(f"- `{key}`: {info[key]:.3g}")
-        self.gui.training.content = "\n".join(lines)
-
     # ------------------------------------------------------------------ the loop
 
     def _push_frame_if_paused(self) -> None:
         if not self.playing:
             self._push_frame()
 
-    def _push_frame(self) -> None:
-        if self.source is None or self.scene is None:
+    def _push_frame(self, source: LiveSource | ReplaySource | None = None) -> None:
+        """Sends the frame of `source` (a new one, before `_set_source` publishes it; else the
+        current source): scene, replay slider and, at most every COUNTER_PERIOD while playing,
+        the counters (always for a new source)."""
+        first = source is not None
+        source = self.source if source is None else source
+        if source is None or self.scene is None:
             return
-        trail = self.source.trail() if self.gui.trails.value else None
+        trail = source.trail() if self.gui.trails.value else None
         if self._serializer is not None:
             now = time.monotonic()
             self._serializer.insert_sleep(max(now - self._last_record_time, 0.0))
             self._last_record_time = now
-        self.scene.update(self.source.frame(), trail, self._attention())
+        self.scene.update(source.frame(), trail, self._attention(source))
         self.frames_streamed += 1
-        if isinstance(self.source, ReplaySource):
-            self.gui.frame.value = self.source.index
+        if isinstance(source, ReplaySource):
+            self.gui.frame.value = source.index
         now = time.monotonic()
-        if now - self._last_counters >= COUNTER_PERIOD or not self.playing:
+        if first or now - self._last_counters >= COUNTER_PERIOD or not self.playing:
             self._last_counters = now
-            label = "frame t" if isinstance(self.source, ReplaySource) else "t"
-            self.gui.counters.content = counters_markdown(
-                self.source.counters(), self.source.config, label
-            )
+            label = "frame t" if isinstance(source, ReplaySource) else "t"
+            self.gui.counters.content = counters_markdown(source.counters(), source.config, label)
 
     def _advance(self) -> None:
         """One step of the source, with episode looping."""

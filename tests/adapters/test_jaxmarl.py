@@ -9,6 +9,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 from jaxmarl.wrappers.baselines import CTRolloutManager, LogWrapper
 
@@ -16,6 +17,7 @@ from pe_mjx.adapters.common import flatten_observation
 from pe_mjx.adapters.jaxmarl import JaxMARLEnv
 from pe_mjx.config import get_preset
 from pe_mjx.names import TEAMS
+from pe_mjx.stages.dynamics import action_table
 
 BATCH, STEPS, MAX_STEPS = 4, 20, 7
 
@@ -136,3 +138,54 @@ def test_ct_rollout_manager_batches_pads_and_steps():
     expected_steps = np.where(np.asarray(done["__all__"]), 0, 1)  # auto-reset if it ended
     np.testing.assert_array_equal(state.world.step, expected_steps)
     assert obs["__all__"].shape == (3, sum(base.observation_space(a).shape[0] for a in base.agents))
+
+
+def test_invalid_actions_follow_jaxmarls_convention():
+    """No raise inside `step` (JaxMARL steps under jit and vmap): an index out of range (999,
+    -1) or one that `get_avail_actions` forbids is played as the stop action and marked in
+    infos["invalid_action"]; the rest of the step is the env's. What is static (agent names, the
+    dtype) is a ValueError when `step` is traced."""
+    base = JaxMARLEnv(get_preset("4-2-2"), backend="kinematic")
+    # Some agent has an action its mask forbids (4-2-2's pursuers always do: the minimum turning
+    # radius).
+    _, state = base.reset(jax.random.key(1))
+    avail = jax.device_get(base.get_avail_actions(state))
+    forbidden = {a: np.flatnonzero(~avail[a]) for a in base.agents}
+    masked_agent = next(a for a in base.agents if forbidden[a].size)
+    valid = {a: int(np.flatnonzero(avail[a])[-1]) for a in base.agents}
+    actions = {
+        **valid,
+        "pursuer_1": 999,
+        "pursuer_2": -1,
+        masked_agent: int(forbidden[masked_agent][0]),
+    }
+    step = jax.jit(base.step_env)
+    _, new, _, _, infos = step(
+        jax.random.key(0), state, {a: jnp.int32(x) for a, x in actions.items()}
+    )
+    flagged = {
+        a for a, f in zip(base.agents, np.asarray(infos["invalid_action"]), strict=True) if f
+    }
+    assert flagged == {"pursuer_1", "pursuer_2", masked_agent}
+    played = {
+        t: jnp.array(
+            [base.noop[t] if a in flagged else actions[a] for a in base.team_agents[t]], jnp.int32
+        )
+        for t in TEAMS
+    }
+    direct = base.env.step(state, played)
+    np.testing.assert_array_equal(np.asarray(new.world.pos), np.asarray(direct.world.pos))
+    v, omega = action_table(base.env.config.pursuer)
+    assert (
+        v[base.noop["pursuer"]] == 0
+        and abs(omega[base.noop["pursuer"]]) == np.abs(omega[v == 0]).min()
+    )
+    # All valid: nothing flagged.
+    _, _, _, _, infos = step(jax.random.key(0), state, {a: jnp.int32(x) for a, x in valid.items()})
+    assert not np.asarray(infos["invalid_action"]).any()
+    with pytest.raises(ValueError, match=r"unknown agents \['referee'\]"):
+        base.step_env(jax.random.key(0), state, {**valid, "referee": 0})
+    with pytest.raises(ValueError, match=r"no action for agents \['evader_0'\]"):
+        base.step_env(jax.random.key(0), state, {a: x for a, x in valid.items() if a != "evader_0"})
+    with pytest.raises(ValueError, match=r"pursuer_0: actions must be integer indices .*float32"):
+        base.step_env(jax.random.key(0), state, {**valid, "pursuer_0": jnp.float32(1.7)})

@@ -113,6 +113,10 @@ def test_observations_equal_env_on_simulated_episode():
             ctrl.update_team(team, pose[sl], i * config.control_dt)
         down = {t: ~w.active[sl] for t, sl in env.team_slices.items()}
         obstacles = w.obstacles
+        if i == 0:  # placed overlapping (the env downs both on the first step): refused
+            with pytest.raises(ValueError, match=r"pursuer 0 at .* overlaps evader 0"):
+                ctrl.observe(obstacles, down)
+            continue
         obs = ctrl.observe(obstacles, down)
         for team in TEAMS:
             for key, want in state.obs[team].items():
@@ -188,3 +192,72 @@ def test_errors_are_clear():
         ctrl.observe(np.zeros((0, 3)), {"pursuer": [True]})
     with pytest.raises(ValueError, match="r > 0"):
         ctrl.observe(np.array([[0.0, 0.0, -1.0]]))
+
+
+def _placed(ctrl: Controller, pursuers, evaders, t: float = 0.0) -> None:
+    ctrl.update_team("pursuer", pursuers, t)
+    ctrl.update_team("evader", evaders, t)
+
+
+PURSUERS = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, np.pi], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0]])
+EVADERS = np.array([[0.0, 2.0, 0.0], [0.0, -2.0, 0.0]])
+OBSTACLES = np.array([[2.0, 0.5, 0.3], [-2.0, -0.5, 0.4]])
+
+
+def test_a_loaded_policy_commands_robots():
+    """README's deployment example: `pe_mjx.load_policy(...)` (a `Policy`, which holds its
+    parameters in dicts and cannot be hashed) in place of the exported file; `act` raised
+    `TypeError: unhashable type: 'dict'`."""
+    import pe_mjx
+
+    config = get_preset(ROBOTS)
+    policy = pe_mjx.load_policy("mix-20-5-8", team="pursuer", deterministic=True)
+    ctrl = Controller(config, {"pursuer": policy})
+    _placed(ctrl, PURSUERS, EVADERS)
+    commands = ctrl.act(OBSTACLES, down={"pursuer": [False, True, False, False]})
+    assert commands["pursuer"].shape == (4, 2) and np.all(commands["pursuer"][1] == 0)
+    obs = ctrl.observe(OBSTACLES, down={"pursuer": [False, True, False, False]})
+    actions = np.asarray(policy(obs["pursuer"], jax.random.key(0)))
+    v, w = action_table(config.pursuer)
+    np.testing.assert_array_equal(commands["pursuer"][0], [v[actions[0]], w[actions[0]]])
+
+
+def test_poses_the_env_could_not_be_in_are_refused_naming_the_robot():
+    config = get_preset(ROBOTS)  # arena radius 3 m, pursuer radius 0.1, evader 0.15
+    ctrl = Controller(config, {t: make_policy("scripted", config, t) for t in TEAMS})
+    cases = [
+        ("pursuer", 2, (1e6, 0.0, 0.0), None, r"pursuer 2 at \(1e\+06, 0\) is outside the arena"),
+        ("evader", 1, (0.0, -2.9, 0.0), None, r"evader 1 at \(0, -2\.9\) touches the arena wall"),
+        ("pursuer", 0, (2.0, 0.65, 0.0), None, r"pursuer 0 at \(2, 0\.65\) overlaps obstacle 0"),
+        ("pursuer", 3, (-0.9, 0.0, 0.0), None, r"pursuer 0 at \(-1, 0\) overlaps pursuer 3"),
+        ("evader", 0, (1.1, 0.1, 0.0), None, r"pursuer 1 at \(1, 0\) overlaps evader 0"),
+        # A robot that is down is where it went down: against what downed it, not far outside.
+        ("pursuer", 2, (50.0, 0.0, 0.0), {"pursuer": [0, 0, 1, 0]}, "pursuer 2 .* outside"),
+    ]
+    for t, (team, i, pose, down, message) in enumerate(cases):
+        pursuers, evaders = PURSUERS.copy(), EVADERS.copy()
+        (pursuers if team == "pursuer" else evaders)[i] = pose
+        _placed(ctrl, pursuers, evaders, t=float(t))  # a newer time: every pose is taken
+        for call in (ctrl.observe, ctrl.act):
+            with pytest.raises(ValueError, match=message):
+                call(OBSTACLES, down)
+    # Down robots may touch the wall, an obstacle, each other.
+    pursuers = PURSUERS.copy()
+    pursuers[0] = (-1.95, -0.35, 0.0)  # overlaps obstacle 1
+    pursuers[2] = (0.0, 2.85, 0.0)  # touches the wall
+    pursuers[3] = (0.05, 2.0, 0.0)  # overlaps evader 0, which is down too
+    _placed(ctrl, pursuers, EVADERS, t=100.0)
+    down = {"pursuer": [True, False, True, True], "evader": [True, False]}
+    commands = ctrl.act(OBSTACLES, down)
+    assert np.all(commands["pursuer"][[0, 2, 3]] == 0) and np.all(commands["evader"][0] == 0)
+    # ... but an active robot may not touch a downed one.
+    with pytest.raises(ValueError, match=r"pursuer 3 .* overlaps evader 0"):
+        ctrl.act(OBSTACLES, {"pursuer": [True, False, True, False], "evader": [True, False]})
+
+
+def test_a_policy_returning_impossible_actions_is_refused():
+    config = get_preset(ROBOTS)
+    ctrl = Controller(config, {"pursuer": lambda obs, rng: jnp.full(4, 999, jnp.int32)})
+    _placed(ctrl, PURSUERS, EVADERS)
+    with pytest.raises(ValueError, match=r"the pursuer policy returned int32\[4\] \[999"):
+        ctrl.act(OBSTACLES)

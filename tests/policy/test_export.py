@@ -22,7 +22,7 @@ from pe_mjx.config import get_preset
 from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.policy.deploy import Controller
 from pe_mjx.policy.export_loader import load
-from tests.tool_modules import load_tool
+from pe_mjx.policy.ship import ship_policy
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN = ROOT / "assets" / "policies" / "mix-20-5-8"
@@ -109,11 +109,10 @@ def test_exported_policy_equals_live_policy(exported, tmp_path):
 
 
 def test_a_length_unit_is_exported_for_the_scene_it_fixes(tmp_path):
-    """The shipped pursuers reading neighbour lengths in units of 5 m (`ship_policy.py
+    """The shipped pursuers reading neighbour lengths in units of 5 m (`pe-mjx ship
     --length-unit 5`), exported for 4-2-2 (a 3 m arena): the file acts as the live policy
     resolved for that scene, not as the same parameters reading arena radii."""
-    tool = load_tool("ship_policy")
-    metric = tool.ship(tool.Args(RUN, "m5", dest=tmp_path, length_unit=5.0))
+    metric = ship_policy(RUN, "m5", dest=tmp_path, length_unit=5.0)[0]
     path = tmp_path / "m5.jaxexport"
     with contextlib.redirect_stdout(io.StringIO()):
         cli.main(["export", str(metric), "-o", str(path), "--preset", ROBOTS])
@@ -234,3 +233,150 @@ def test_cli_errors_are_one_line(exported, tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.startswith("pe-mjx: error: ") and message in err, (argv, err)
         assert len(err.strip().splitlines()) == 1, err
+
+
+def _rewritten(source: Path, path: Path, meta_change=None, program: bytes | None = None) -> Path:
+    """A copy of `source` with its metadata changed by `meta_change(meta)` and/or its program
+    replaced (a well-formed zip: only the content is wrong)."""
+    with zipfile.ZipFile(source) as archive:
+        meta = json.loads(archive.read("meta.json"))
+        original = archive.read("policy.stablehlo")
+    if meta_change is not None:
+        meta_change(meta)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("meta.json", json.dumps(meta))
+        archive.writestr("policy.stablehlo", original if program is None else program)
+    return path
+
+
+def _load_outcome(path: Path) -> str:
+    """ "ok", or "ValueError: ..." (anything else fails the test at once)."""
+    try:
+        load(path)
+    except ValueError as err:
+        assert str(err).startswith(str(path)), err
+        assert "\n" not in str(err), err
+        return f"ValueError: {err}"
+    return "ok"
+
+
+def test_every_truncation_and_flipped_byte_is_a_value_error(exported, tmp_path):
+    """Deterministic fuzzing of a real exported file: truncated at every length of its head and
+    tail and at a stride between, and every byte of its zip headers (and a stride of its
+    compressed data) inverted. Each either raises ValueError naming the file, or (a byte zip
+    does not use: a timestamp, the "made by" version) loads the same policy."""
+    data = exported.read_bytes()
+    n = len(data)
+    original = load(exported)
+    path = tmp_path / "fuzz.jaxexport"
+    lengths = sorted({*range(0, 600), *range(n - 600, n), *range(600, n - 600, 211)})
+    for length in lengths:
+        path.write_bytes(data[:length])
+        assert _load_outcome(path).startswith("ValueError"), length
+    # The zip's structures: both local headers, the central directory and its end record.
+    central = data.rfind(b"PK\x01\x02", 0, data.rfind(b"PK\x01\x02"))
+    second_local = data.find(b"PK\x03\x04", 4)
+    headers = {*range(0, 120), *range(second_local, second_local + 120), *range(central, n)}
+    positions = sorted(headers | set(range(0, n, 97)))
+    outcomes = {"ok": 0, "error": 0}
+    for i in positions:
+        flipped = bytearray(data)
+        flipped[i] ^= 0xFF
+        path.write_bytes(bytes(flipped))
+        outcome = _load_outcome(path)
+        if outcome == "ok":
+            outcomes["ok"] += 1
+            again = load(path)
+            assert again.meta == original.meta and again.inputs == original.inputs, i
+        else:
+            outcomes["error"] += 1
+    print(f"{len(lengths)} truncations, {len(positions)} flipped bytes: {outcomes}")
+    assert outcomes["error"] > 0.8 * len(positions)
+
+
+def test_malformed_contents_are_value_errors_before_any_allocation(exported, tmp_path):
+    """Well-formed zips with wrong contents, and headers that declare huge sizes."""
+    cases = {
+        "wrong_magic": None,
+        "huge_program_size": None,
+        "no_meta": None,
+        "format": (lambda m: m.pop("format"), "format tag missing"),
+        "version_2": (lambda m: m.__setitem__("version", 2), "format version 2"),
+        "team": (lambda m: m.__setitem__("team", "referee"), "team must be one of"),
+        "inputs_not_list": (lambda m: m.__setitem__("inputs", {}), "inputs must be"),
+        "dtype_float64": (
+            lambda m: m["inputs"][0].__setitem__("dtype", "float64"),
+            "input 'own' has dtype 'float64'",
+        ),
+        "dtype_object": (lambda m: m["inputs"][1].__setitem__("dtype", "object"), "has dtype"),
+        "shape_negative": (lambda m: m["inputs"][0].__setitem__("shape", [-4, 5]), "has shape"),
+        "shape_huge": (
+            lambda m: m["inputs"][2].__setitem__("shape", [60000, 60000, 6]),
+            "more than",
+        ),
+        "shape_float": (lambda m: m["inputs"][0].__setitem__("shape", [4.0, 5]), "has shape"),
+        "shape_disagrees_with_program": (
+            lambda m: m["inputs"][0].__setitem__("shape", [4, 6]),
+            "its program takes",
+        ),
+        "agent_counts_differ": (
+            lambda m: m["inputs"][0].__setitem__("shape", [3, 5]),
+            "disagree on the agent count",
+        ),
+        "actions_table_short": (
+            lambda m: m["action_table"].__setitem__("v", m["action_table"]["v"][:-1]),
+            "differ in length",
+        ),
+        "actions_table_nan": (
+            lambda m: m["action_table"]["omega"].__setitem__(0, float("nan")),
+            "finite numbers",
+        ),
+        "actions_table_missing": (lambda m: m.pop("action_table"), "action_table is missing"),
+        "garbage_program": (None, "program cannot be read"),
+        "empty_program": (None, "program cannot be read"),
+    }
+    data = exported.read_bytes()
+    for name, case in cases.items():
+        path = tmp_path / f"{name}.jaxexport"
+        if name == "wrong_magic":
+            path.write_bytes(b"XX" + data[2:])
+            message = "is not a pe-mjx exported policy"
+        elif name == "huge_program_size":
+            # The central directory's uncompressed size of the program: 4 GB.
+            central = data.rfind(b"PK\x05\x06")  # the end record; the directory is before it
+            entry = data.rfind(b"PK\x01\x02", 0, data.rfind(b"policy.stablehlo", 0, central))
+            crafted = bytearray(data)
+            crafted[entry + 24 : entry + 28] = (0xFFFFFFF0).to_bytes(4, "little")
+            path.write_bytes(bytes(crafted))
+            message = "declares 4,294,967,280 bytes"
+        elif name == "no_meta":
+            with zipfile.ZipFile(path, "w") as archive:
+                archive.writestr("policy.stablehlo", b"x")
+            message = "has no meta.json member"
+        elif case[0] is None:  # the program replaced
+            program = b"" if name == "empty_program" else bytes(range(256)) * 40
+            _rewritten(exported, path, program=program)
+            message = case[1]
+        else:
+            _rewritten(exported, path, meta_change=case[0])
+            message = case[1]
+        outcome = _load_outcome(path)
+        assert outcome.startswith("ValueError") and message in outcome, (name, outcome)
+
+
+def test_exported_policy_refuses_non_finite_observations_and_empty_masks(exported):
+    policy = load(exported)
+    obs = _observations(1)[0]
+    policy(obs)  # valid
+    bad = {**obs, "opponents": obs["opponents"].copy()}
+    bad["opponents"][1, 0, 2] = np.nan
+    with pytest.raises(ValueError, match=r"observation opponents holds nan at \[1, 0, 2\]"):
+        policy(bad)
+    bad = {**obs, "own": obs["own"].copy()}
+    bad["own"][0, 0] = np.inf
+    with pytest.raises(ValueError, match="observation own holds inf"):
+        policy.commands(bad)
+    mask = obs["action_mask"].copy()
+    mask[2] = False
+    with pytest.raises(ValueError, match=r"action_mask allows no action for agent\(s\) \[2\]"):
+        policy({**obs, "action_mask": mask})

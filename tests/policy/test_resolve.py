@@ -56,23 +56,37 @@ def test_errors_name_the_problem(tmp_path):
         resolve_policy(SHIPPED, "pursuer", other)
 
 
-def test_a_config_that_disagrees_with_the_arrays_is_refused_before_they_are_read(tmp_path):
-    """A run whose network config says twice the width its arrays have is one clear error that
-    names the array and both shapes, found from orbax's metadata before any array is read (orbax
-    read the arrays and failed half-way, leaving coroutines unawaited)."""
+@pytest.mark.parametrize("layout", ["packed", "orbax"])
+def test_a_config_that_disagrees_with_the_arrays_is_refused_before_they_are_read(tmp_path, layout):
+    """A policy whose network config says twice the width its arrays have is one clear error that
+    names the array and both shapes, found before any array is read (orbax: from its metadata;
+    orbax read the arrays and failed half-way, leaving coroutines unawaited)."""
     import json
     import shutil
     import warnings
 
+    from pe_mjx.policy import packed
     from pe_mjx.policy.shipped import policies_dir
+    from tests.policy_copies import orbax_copy
+
+    def wider(meta: dict) -> int:
+        width = meta["network_configs"]["pursuer"]["width"]
+        meta["network_configs"]["pursuer"]["width"] = 2 * width
+        meta["experiment"]["pursuer"]["network"]["width"] = 2 * width
+        return width
 
     run = tmp_path / "run"
-    shutil.copytree(policies_dir() / SHIPPED, run)
-    path = next((run / "checkpoints").iterdir()) / "meta" / "metadata"
-    meta = json.loads(path.read_text())
-    width = meta["network_configs"]["pursuer"]["width"]
-    meta["network_configs"]["pursuer"]["width"] = 2 * width
-    path.write_text(json.dumps(meta))
+    if layout == "packed":
+        shutil.copytree(policies_dir() / SHIPPED, run)
+        meta, policies = packed.read(run)
+        width = wider(meta)
+        packed.write(run, meta, policies)
+    else:
+        orbax_copy(SHIPPED, run)
+        path = next((run / "checkpoints").iterdir()) / "meta" / "metadata"
+        meta = json.loads(path.read_text())
+        width = wider(meta)
+        path.write_text(json.dumps(meta))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # an unawaited read would warn
         with pytest.raises(CheckpointError) as err:

@@ -137,6 +137,14 @@ def test_lost_process_errors_are_recognised():
             ["--coordinator-address", "h:1", "--num-processes", "2", "--process-id", "5"],
             "--process-id must be in [0, 2)",
         ),
+        (
+            [
+                *("--coordinator-address", "h:1", "--num-processes", "2"),
+                *("--process-id", "1", "--join-timeout", "0"),
+            ],
+            "--join-timeout must be >= 1 s, got 0",
+        ),
+        (["--join-timeout", "soon", "--num-processes", "2"], "--join-timeout must be an integer"),
     ],
 )
 def test_bad_group_flags_are_one_line_before_any_work(flags, message, capsys, tmp_path):
@@ -146,6 +154,41 @@ def test_bad_group_flags_are_one_line_before_any_work(flags, message, capsys, tm
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
     assert not (tmp_path / "run").exists()
+
+
+def _closed_port() -> int:
+    """A local port where nothing listens (bound, then released)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("process_id", ["1", "0"])
+def test_a_group_that_cannot_form_is_one_line_within_the_join_timeout(process_id, tmp_path):
+    """Process 1 with nobody at --coordinator-address (it printed nothing for 5 minutes, then
+    jax aborted with a C++ stack trace), and process 0 whose partner never comes: one line
+    naming the address, exit code 2, no traceback, within the 3 s timeout plus start-up."""
+    address = f"127.0.0.1:{_closed_port()}"
+    group = ["--coordinator-address", address, "--num-processes", "2", "--process-id"]
+    cmd = [sys.executable, "-m", "pe_mjx.cli", "train", *TINY, "--out", str(tmp_path / "run")]
+    tic = time.monotonic()
+    result = subprocess.run(
+        [*cmd, *group, process_id, "--join-timeout", "3"],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    elapsed = time.monotonic() - tic
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr[-3000:]
+    assert lines[0].startswith(f"pe-mjx: error: --coordinator-address: process {process_id} of 2")
+    assert address in lines[0] and "3 s" in lines[0], lines[0]
+    assert "Traceback" not in result.stderr and "Check failure" not in result.stderr
+    assert not (tmp_path / "run").exists()
+    # The interpreter and pe_mjx start in seconds (tens on this loaded 2-core machine); jax's own
+    # deadline, had the join waited for it, is 5 minutes.
+    assert elapsed < 3 + 90, elapsed
 
 
 # ---------------------------------------------------------------- two processes

@@ -117,7 +117,7 @@ def test_wandb_project_without_the_extra_is_one_error_line(tmp_path, monkeypatch
 
 
 def test_the_start_history_of_a_run_survives_old_and_damaged_config_files(tmp_path):
-    from pe_mjx.ppo.run import MAX_CONFIG_BYTES, _earlier_starts
+    from pe_mjx.ppo.run_files import MAX_CONFIG_BYTES, _earlier_starts
 
     path = tmp_path / "config.json"
     assert _earlier_starts(tmp_path) == []  # no file yet

@@ -7,6 +7,7 @@ set up a state or to read what the server did.
 
 from __future__ import annotations
 
+import json
 import shutil
 import time
 from pathlib import Path
@@ -17,6 +18,7 @@ import viser
 from PIL import Image
 
 from pe_mjx.viewer import start_viewer
+from tests.viewer.browser import BrowserError
 from tests.viewer.viewer_helpers import (
     ForgedClient,
     gui_uuid,
@@ -49,8 +51,16 @@ def click_until(page, text: str, done, what: str, tries: int = 3) -> None:
 
 
 def wait_for_text(page, text: str, timeout: float, what: str) -> None:
-    """Waits until `text` is part of what the page shows."""
-    wait_until(lambda: text in page.evaluate("document.body.innerText"), timeout=timeout, what=what)
+    """Waits until `text` is part of what the page shows.
+
+    The page polls itself (Playwright's wait_for_function), so a busy renderer costs no round
+    trip per look; the tab is brought to the front first, because viser's client reconnects a
+    dropped websocket only while its page has the focus."""
+    page.page.bring_to_front()
+    try:
+        page.wait_for(f"document.body.innerText.includes({json.dumps(text)})", timeout=timeout)
+    except BrowserError as err:
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}: {err}") from None
 
 
 def set_playing(viewer, playing: bool) -> None:
@@ -443,12 +453,18 @@ def test_scene_controls_reset_and_apply(browser, live_viewer):
         live_viewer.gui.obstacles.value = 1
         live_viewer.gui.arenas.value = 1
         page.click_text("Apply scene")
+        # The viewer publishes the new source once its scene, first frame and status are sent
+        # (`_set_source`), so from here on the page has everything it needs. The name comes
+        # first: a screenshot with both teams would also match the old scene (4-1-2 has both),
+        # so only after the new status is on the page does "both teams" mean the new scene.
+        # The page's wait is the render budget: it covers rebuilding the scene in software
+        # WebGL on a loaded machine (and a reconnect, if the websocket was dropped meanwhile).
         wait_until(lambda: live_viewer.source.num_arenas == 1, timeout=300, what="the new scene")
         config = live_viewer.source.run.config
         assert (config.pursuer.num_agents, config.arena.num_obstacles) == (3, 1)
         assert config.name == "3-1-1"
+        wait_for_text(page, "3-1-1", timeout=RENDER_TIMEOUT, what="the new scene's name")
         page.wait_for_image(shows_both_teams, timeout=RENDER_TIMEOUT)
-        wait_for_text(page, "3-1-1", timeout=30, what="the new scene's name in the page")
         assert moved(page) > 20
     finally:
         page.close()

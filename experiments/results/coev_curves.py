@@ -1,7 +1,7 @@
 """Learning curves of the co-evolutions, one figure per run, from data kept in the repo.
 
-    python tools/coev_curves.py --runs runs/coev/mlp-20-5-8-s0 runs/coev/mix-20-5-8-s0 ...
-    python tools/coev_curves.py            # redraw the figures from docs/data/coev_curves.json
+    python experiments/results/coev_curves.py --runs runs/coev/mlp-20-5-8-s0 ...
+    python experiments/results/coev_curves.py   # redraw from docs/data/coev_curves.json
 
 With --runs, the evaluation curves of each run (its TensorBoard events: every `--eval-every`
 iterations each learned team plays against the scripted opponent) and the training episodes'
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import tyro
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 # tag -> (panel, legend label, colour: blue = the learned pursuers, orange = the learned evaders)
 SERIES = {
     "eval/pursuer_vs_scripted/success_rate": (

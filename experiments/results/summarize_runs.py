@@ -1,6 +1,6 @@
 """Summarise training runs into one JSON (and Markdown) table: what each changed, how it learned.
 
-    python tools/summarize_runs.py runs/diag/* --reference runs/diag/d1-baseline \
+    python experiments/results/summarize_runs.py runs/diag/* --reference runs/diag/d1-baseline \
         --out docs/data/evader_diagnosis
 
 For every run directory: the experiment fields that differ from the reference run's config, the

@@ -1,4 +1,5 @@
-"""tools/seed_spread.py and the seed figures of tools/coev_curves.py, on small made-up inputs."""
+"""experiments/results/seed_spread.py and the seed figures of experiments/results/coev_curves.py,
+on small made-up inputs."""
 
 from __future__ import annotations
 
@@ -9,13 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from tests.tool_modules import load_tool
-
-ROOT = Path(__file__).resolve().parent.parent
+from tests.tool_modules import EXPERIMENTS, load_experiment
 
 
 def _load(name: str):
-    return load_tool(name)
+    return load_experiment("results", name)
 
 
 META = {"preset": "20-5-8", "trials": 100, "seed": 0, "backend": "kinematic"}
@@ -49,7 +48,7 @@ def test_seed_spread_gives_mean_std_and_range_over_seeds(tmp_path):
     subprocess.run(
         [
             sys.executable,
-            str(ROOT / "tools" / "seed_spread.py"),
+            str(EXPERIMENTS / "results" / "seed_spread.py"),
             *map(str, runs),
             "--out",
             str(out),
@@ -78,7 +77,7 @@ def test_seed_spread_refuses_evaluations_it_cannot_compare_in_one_line(tmp_path)
     c = tmp_path / "c"
     c.mkdir()
     (c / "results.json").write_text("{not json")
-    tool = str(ROOT / "tools" / "seed_spread.py")
+    tool = str(EXPERIMENTS / "results" / "seed_spread.py")
     for other, says in [
         (b, "no pairing"),
         (_evaluation(tmp_path / "e", 0.9, 500, preset="16-4-4"), "not the same evaluation"),

@@ -1,6 +1,6 @@
 """Mean and spread over seeds of the same evaluation played with each seed's policies.
 
-    python tools/seed_spread.py docs/data/coev-mix-20-5-8-seeds/s0 .../s1 .../s2 \
+    python experiments/results/seed_spread.py docs/data/coev-mix-20-5-8-seeds/s0 .../s1 .../s2 \
         --out docs/data/coev-mix-20-5-8-seeds
 
 Each input is the output directory of one `pe-mjx evaluate` (its results.json), run with one
@@ -89,7 +89,7 @@ def markdown(rows: list[dict], title: str, sources: list[str], left_out: list, m
     lines = [
         f"# {title}",
         "",
-        "Written by `python tools/seed_spread.py` from "
+        "Written by `python experiments/results/seed_spread.py` from "
         + ", ".join(f"`{s}`" for s in sources)
         + f". Scene {meta['preset']}, {meta['trials']} trials per pairing and seed (trial seed "
         f"{meta['seed']}), {meta['backend']} backend. Each cell: mean over seeds ± sample "

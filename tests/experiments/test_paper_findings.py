@@ -1,14 +1,15 @@
-"""tools/paper_findings.py on a small made-up table: the per-method means and the evader duels."""
+"""experiments/results/paper_findings.py on a small made-up table: the per-method means and the
+evader duels."""
 
 from __future__ import annotations
 
 import json
 
-from tests.tool_modules import load_tool
+from tests.tool_modules import load_experiment
 
 
 def _load():
-    return load_tool("paper_findings")
+    return load_experiment("results", "paper_findings")
 
 
 # success[evader][pursuer]: every method's pursuers and evaders, and the scripted teams

@@ -1,6 +1,6 @@
 """Summaries of the cross-confrontation tables that the paper's findings are judged on.
 
-    python tools/paper_findings.py [--data docs/data/paper]
+    python experiments/results/paper_findings.py [--data docs/data/paper]
 
 Reads `<data>/table-*/results.json` (written by `pe-mjx reproduce`) and writes
 `<data>/findings.json` and `<data>/findings.md`: per table, each learned pursuit method's mean
@@ -28,7 +28,7 @@ import tyro
 from pe_mjx.names import ENCODERS
 from pe_mjx.reproduce import method_of
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +115,8 @@ def main(args: Args) -> None:
     lines = [
         "# Per-method means over each table's cross pairings",
         "",
-        "Written by `python tools/paper_findings.py` from `table-*/results.json`. A method's "
+        "Written by `python experiments/results/paper_findings.py` from `table-*/results.json`. "
+        "A method's "
         "mean is over the pairings with the other methods (scripted and same-method pairings "
         "left out); lower success conceded is a stronger evader.",
         "",

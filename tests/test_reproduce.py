@@ -1,5 +1,6 @@
-"""`pe-mjx reproduce` end to end at a tiny budget: trains, evaluates, writes the report,
-and resumes without redoing anything."""
+"""pe_mjx/reproduce.py (`pe-mjx reproduce`) end to end at a tiny budget: trains, evaluates, writes
+the report, and resumes without redoing anything; and what train/launch.py did (--only,
+--env-steps, --stop-after, --train-seed, --skip-eval)."""
 
 from __future__ import annotations
 
@@ -195,3 +196,60 @@ def test_extend_plays_a_kept_table_again_keeping_what_it_can(tmp_path, monkeypat
     # Complete now: kept as it is, nothing played.
     _evaluate(args)
     assert len(calls) == 1
+
+
+def test_what_train_launch_did_is_reproduce_only_stop_after_and_skip_eval(tmp_path, monkeypatch):
+    """--only picks runs by name (not by table), --env-steps sets their budget, --stop-after and
+    --train-seed reach `train`, a run with a checkpoint is resumed (and one at its budget left
+    alone), and nothing is evaluated while a run is unfinished or with --skip-eval."""
+    import pe_mjx.ppo.run
+    from pe_mjx.policy import store
+    from pe_mjx.reproduce import ReproduceArgs, reproduce
+
+    calls = []
+
+    class State:
+        env_steps = 100  # below the budget: unfinished
+
+    def train(config, out, resume=False, stop_after=None):
+        calls.append((out.name, config.env_steps, config.seed, resume, stop_after))
+        return None, State()
+
+    monkeypatch.setattr(pe_mjx.ppo.run, "train", train)
+    done_meta = {"env_steps": 5000}
+    (tmp_path / "mean-20-5-8" / store.CHECKPOINT_DIR).mkdir(parents=True)
+    (tmp_path / "mix-16-4-4" / store.CHECKPOINT_DIR).mkdir(parents=True)
+    monkeypatch.setattr(
+        store, "read_meta", lambda run: done_meta if "16-4-4" in str(run) else {"env_steps": 0}
+    )
+    args = ReproduceArgs(
+        runs=tmp_path,
+        only=("mix-20-5-8", "mean-20-5-8", "mix-16-4-4"),
+        env_steps=5000,
+        stop_after=3,
+        train_seed=7,
+        docs=tmp_path / "report.md",
+        out=tmp_path / "results",
+    )
+    assert reproduce(args) is None  # unfinished: no table, no report
+    assert sorted(calls) == [("mean-20-5-8", 5000, 7, True, 3), ("mix-20-5-8", 5000, 7, False, 3)]
+    assert not (tmp_path / "report.md").exists() and not (tmp_path / "results").exists()
+
+
+def test_reproduce_flags_are_checked_by_the_args_themselves(tmp_path, capsys):
+    import pytest
+
+    from pe_mjx.cli import main
+
+    for flags, message in (
+        (("--only", "mix-9-9-9"), "--only: unknown runs mix-9-9-9"),
+        (("--env-steps", "0"), "--env-steps must be >= 1"),
+        (("--stop-after", "0"), "--stop-after must be >= 1"),
+        (("--fraction", "2"), "--fraction must be in (0, 1]"),
+    ):
+        with pytest.raises(SystemExit) as exit_:
+            main(["reproduce", *flags, "--runs", str(tmp_path), "--out", str(tmp_path / "o")])
+        assert exit_.value.code == 2, flags
+        err = capsys.readouterr().err
+        assert err.startswith(f"pe-mjx: error: {message}") and len(err.splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []

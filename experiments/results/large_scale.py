@@ -1,6 +1,6 @@
 """Beyond the paper: a policy trained at 20-5-8 played at 10x the paper's largest scale.
 
-    python tools/large_scale.py [--trials 10] [--out docs/data/large-scale]
+    python experiments/results/large_scale.py [--trials 10] [--out docs/data/large-scale]
 
 Plays the shipped local-attention MIX policy (`mix-20-5-8-3m-k4`: the 3M MIX co-evolution's
 parameters, each team reading only the 4 nearest entities of each type) and the scripted teams
@@ -32,20 +32,18 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import tempfile
 from pathlib import Path
 
 import tyro
-from ship_policy import Args as ShipArgs
-from ship_policy import ship
 
-from pe_mjx.config import PRESETS, EnvConfig
+from pe_mjx.config import scene_by_counts
 from pe_mjx.evaluate import evaluate
+from pe_mjx.policy.ship import ship_policy
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LOCAL = "mix-20-5-8-3m-k4"
-"""The shipped local-attention policy (tools/ship_policy.py mix-20-5-8-3m ... --nearest-k 4)."""
+"""The shipped local-attention policy (pe-mjx ship mix-20-5-8-3m ... --nearest-k 4)."""
 FULL = "mix-20-5-8-3m"
 """The same parameters with full attention (the Table III policy)."""
 TUNED_EVADERS = {
@@ -79,7 +77,7 @@ NEXT_EVADER = str(ROOT / "train" / "unfinished" / "e-mix-k4-ft2-240-60-120")
 `p-mix-k4-5m-ft-240-60-120` (a run directory: its last checkpoint); played there only."""
 METRES = (FULL, 4, 5.0)
 """LOCAL reading the distances to its neighbours in units of 5 m, 20-5-8's arena radius, in
-every arena (`NetworkConfig.length_unit`; tools/ship_policy.py --nearest-k 4 --length-unit 5):
+every arena (`NetworkConfig.length_unit`; pe-mjx ship --nearest-k 4 --length-unit 5):
 the same play as LOCAL at 20-5-8, and a neighbourhood of the same density read the same way at
 every other scale. No training."""
 
@@ -96,35 +94,18 @@ class Args:
     """Scenes to play (names P-E-K)."""
 
 
-def scene(name: str) -> EnvConfig:
-    """A preset, or P-E-K at 24-6-12's density (the 240-60-120 preset's rule)."""
-    if name in PRESETS:
-        return PRESETS[name]
-    p, e, k = (int(x) for x in name.split("-"))
-    base = PRESETS["24-6-12"]
-    radius = 5.0 * math.sqrt((p + e + k) / 42)
-    return base.replace(
-        name=name,
-        pursuer=dataclasses.replace(base.pursuer, num_agents=p),
-        evader=dataclasses.replace(base.evader, num_agents=e),
-        arena=dataclasses.replace(base.arena, radius=radius, num_obstacles=k),
-    )
-
-
 def play(args: Args) -> dict:
     summary: dict = {"trials": {}, "scenes": {}}
     with tempfile.TemporaryDirectory() as tmp:
         variants = {}  # path of the local copy -> its name
         for source, k, unit in [*((source, k, None) for source, k in ABLATION), METRES]:
             name = f"{source}-k{k}" + ("" if unit is None else f"-{unit:g}m")
-            ship(
-                ShipArgs(
-                    ROOT / "assets" / "policies" / source,
-                    name,
-                    dest=Path(tmp),
-                    nearest_k=k,
-                    length_unit=unit,
-                )
+            ship_policy(
+                ROOT / "assets" / "policies" / source,
+                name,
+                dest=Path(tmp),
+                nearest_k=k,
+                length_unit=unit,
             )
             variants[str(Path(tmp) / name)] = name
         *ablation_paths, metres = variants  # METRES last
@@ -132,7 +113,7 @@ def play(args: Args) -> dict:
         # Every scene with reports is summarised; only those of --scenes are played.
         scenes = list(dict.fromkeys([*Args.scenes, *args.scenes]))
         for name in scenes:
-            env_config = scene(name)
+            env_config = scene_by_counts(name)
             trials = 100 if name == "20-5-8" else args.trials
             parts = {
                 "main": ([LOCAL, "scripted"], [LOCAL, FULL, "scripted"]),

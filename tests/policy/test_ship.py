@@ -1,5 +1,6 @@
-"""tools/ship_policy.py --nearest-k and --length-unit: local attention and neighbour lengths in
-metres over a run's parameters, and the shipped policies made that way."""
+"""pe_mjx/policy/ship.py (`pe-mjx ship`): policy-only copies of a run; --nearest-k and
+--length-unit: local attention and neighbour lengths in metres over a run's parameters, and the
+shipped policies made that way."""
 
 from __future__ import annotations
 
@@ -13,23 +14,18 @@ import pytest
 import pe_mjx
 from pe_mjx.policy.inference import in_length_unit, normalize_obs
 from pe_mjx.policy.resolve import resolve_policy
+from pe_mjx.policy.ship import ship_policy
 from pe_mjx.policy.store import read_meta
-from tests.tool_modules import load_tool
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 FULL = ROOT / "assets" / "policies" / "mix-20-5-8-3m"
 LOCAL = "mix-20-5-8-3m-k4"
 
 
-def _tool():
-    return load_tool("ship_policy")
-
-
 @pytest.fixture(scope="module")
 def derived(tmp_path_factory):
-    tool = _tool()
     dest = tmp_path_factory.mktemp("ship")
-    return tool.ship(tool.Args(FULL, "k3", dest=dest, nearest_k=3))
+    return ship_policy(FULL, "k3", dest=dest, nearest_k=3)[0]
 
 
 def test_nearest_k_is_written_everywhere_and_the_source_recorded(derived):
@@ -46,9 +42,8 @@ def test_nearest_k_is_written_everywhere_and_the_source_recorded(derived):
 
 
 def test_a_bad_k_is_one_clear_error(tmp_path):
-    tool = _tool()
-    with pytest.raises(SystemExit, match="--nearest-k must be None or >= 1, got 0"):
-        tool.ship(tool.Args(FULL, "k0", dest=tmp_path, nearest_k=0))
+    with pytest.raises(ValueError, match="--nearest-k must be None or >= 1, got 0"):
+        ship_policy(FULL, "k0", dest=tmp_path, nearest_k=0)
 
 
 @pytest.mark.parametrize("team", ["pursuer", "evader"])
@@ -71,10 +66,9 @@ def test_local_attention_changes_what_is_read_not_the_parameters(derived, team):
 
 
 def test_a_bad_length_unit_is_one_clear_error(tmp_path):
-    tool = _tool()
     message = "--length-unit must be None or a positive number of metres"
-    with pytest.raises(SystemExit, match=message):
-        tool.ship(tool.Args(FULL, "m0", dest=tmp_path, length_unit=-5.0))
+    with pytest.raises(ValueError, match=message):
+        ship_policy(FULL, "m0", dest=tmp_path, length_unit=-5.0)
     assert not (tmp_path / "m0").exists()
 
 
@@ -84,8 +78,7 @@ def test_a_length_unit_of_the_training_radius_plays_as_before_there_and_in_metre
     """mix-20-5-8-3m (trained in a 5 m arena) shipped with neighbour lengths in units of 5 m:
     the same logits at 20-5-8; at 8-2-4 (3.5 m) the original network's logits on observations
     whose neighbour lengths are multiplied by 3.5 / 5, which differ from the original's."""
-    tool = _tool()
-    metric = tool.ship(tool.Args(FULL, "m5", dest=tmp_path, length_unit=5.0))
+    metric = ship_policy(FULL, "m5", dest=tmp_path, length_unit=5.0)[0]
     config = json.loads((metric / "config.json").read_text())
     assert config["experiment"]["pursuer"]["network"]["length_unit"] == 5.0
     assert config["derived_from"]["length_unit"] == 5.0
@@ -115,3 +108,35 @@ def test_the_shipped_local_policy_is_the_3m_mix_with_k4():
         a, b = resolve_policy(LOCAL, team), resolve_policy(FULL, team)
         for x, y in zip(jax.tree.leaves(a.variables), jax.tree.leaves(b.variables), strict=True):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_pe_mjx_ship_copies_the_policies_only_and_refuses_to_replace(tmp_path, capsys):
+    """The subcommand that replaced tools/ship_policy.py: same arguments, one error line. From a
+    run's orbax checkpoint it writes a packed policy (config.json and policy.msgpack) that plays
+    the same arrays."""
+    from pe_mjx.cli import main
+    from tests.policy_copies import orbax_copy
+
+    run = orbax_copy("mix-20-5-8-3m", tmp_path / "run")
+    out = tmp_path / "out"
+    main(["ship", str(run), "copy", "--dest", str(out)])
+    assert f"as {out / 'copy'}" in capsys.readouterr().out
+    assert sorted(p.name for p in (out / "copy").iterdir()) == ["config.json", "policy.msgpack"]
+    assert read_meta(out / "copy")["step"] == read_meta(run)["step"]
+    for team in ("pursuer", "evader"):
+        a = resolve_policy(out / "copy", team).variables
+        b = resolve_policy("mix-20-5-8-3m", team).variables
+        pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+        assert all(np.array_equal(x, y) for x, y in pairs)
+    for argv in (
+        ["ship", str(run), "copy", "--dest", str(out)],  # exists, no --replace
+        ["ship", str(FULL), "k0", "--dest", str(out), "--nearest-k", "0"],
+        ["ship", str(tmp_path / "missing"), "x", "--dest", str(out)],
+        ["ship", str(FULL), "../x", "--dest", str(out)],
+    ):
+        with pytest.raises(SystemExit) as exit_:
+            main(argv)
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and err.startswith("pe-mjx: error:"), err
+    assert sorted(p.name for p in out.iterdir()) == ["copy"]

@@ -1,12 +1,14 @@
 """How much of the paper's pursuit shaping a local pursuer can see, per scene.
 
-    python tools/pursuit_shaping.py [--arenas 16] [--out docs/data/pursuit_shaping.json]
+    python experiments/results/pursuit_shaping.py [--arenas 16] \\
+        [--out docs/data/pursuit_shaping.json]
 
 The pursuer's shaping term of eq. (3), f_p = 10 / max(d, d_cap), is summed over every active
 evader. For freshly drawn arenas of 20-5-8 and of the larger scenes at 24-6-12's density
-(tools/large_scale.py) this writes its mean per pursuer at the first state, summed over every
-evader (the paper's, `reward.pursuit_nearest = None`) and over each pursuer's k nearest (k = 1,
-4): the part a pursuer reading its k nearest evaders sees. docs/results.md (section 10) quotes it.
+(`pe_mjx.config.scene_by_counts`, as experiments/results/large_scale.py plays them) this writes
+its mean per pursuer at the first state, summed over every evader (the paper's,
+`reward.pursuit_nearest = None`) and over each pursuer's k nearest (k = 1, 4): the part a
+pursuer reading its k nearest evaders sees. docs/results.md (section 10) quotes it.
 """
 
 from __future__ import annotations
@@ -19,13 +21,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import tyro
-from large_scale import scene
 
+from pe_mjx.config import scene_by_counts
 from pe_mjx.env import PursuitEvasionEnv
 from pe_mjx.stages.geometry import geometry
 from pe_mjx.stages.rewards import paper_terms
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +39,7 @@ class Args:
 
 
 def shaping(name: str, arenas: int) -> dict[str, float]:
-    base = scene(name)
+    base = scene_by_counts(name)
     env = PursuitEvasionEnv(base, backend="kinematic")
     p, e = base.pursuer.num_agents, base.evader.num_agents
     configs = {

@@ -1,0 +1,131 @@
+"""Ship one checkpoint of a `pe-mjx train` run as a policy-only copy (`pe-mjx ship RUN NAME`).
+
+The copy is a packed policy (`pe_mjx.policy.packed`): the run's config.json and one
+`policy.msgpack` with the chosen checkpoint's (default: the latest) metadata and its teams'
+parameters and observation statistics: no optimiser or arena state, so the shipped policy plays
+(`pe-mjx view/evaluate --pursuers NAME`) but cannot be resumed. The source may be a training run
+or another packed policy. By default it goes into the
+package (pe_mjx/assets/policies/NAME, linked from assets/policies/NAME in a checkout, as the
+other shipped policies are); `dest` writes DEST/NAME instead, outside the package (no link). The
+model card is written by hand in assets/policies/README.md.
+
+`nearest_k` ships the same parameters with *local attention* (both teams' networks keep only the
+k nearest entities of each type, `NetworkConfig.nearest_k`) and `length_unit` reading neighbour
+distances in units of that many metres in any arena (`NetworkConfig.length_unit`) instead of in
+arena radii. The encoders' parameters do not depend on either, so this changes what the network
+reads, not what it learned: no training. The copy records both and `derived_from` (the run, its
+step and its former network configs).
+
+Every failure is a `ValueError` naming the flag or the path, before anything is written.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+from pe_mjx.experiment import NetworkConfig
+from pe_mjx.policy import packed, store
+from pe_mjx.policy.shipped import policies_dir, resolve_run
+
+CHECKOUT_LINKS = Path(__file__).resolve().parents[2] / "assets" / "policies"
+"""Where a checkout links the packaged policies from (absent in an installed package)."""
+
+
+def ship_policy(
+    run: Path,
+    name: str,
+    step: int | None = None,
+    replace: bool = False,
+    dest: Path | None = None,
+    nearest_k: int | None = None,
+    length_unit: float | None = None,
+) -> tuple[Path, dict[str, Any]]:
+    """Writes the policy-only copy of `run` as `name`; returns its path and the checkpoint's
+    metadata (with its step and env steps)."""
+    changes = {"nearest_k": nearest_k, "length_unit": length_unit}
+    changes = {k: v for k, v in changes.items() if v is not None}
+    check_changes(changes)  # before anything is copied
+    if not name or "/" in name or name.startswith("."):
+        raise ValueError(f"NAME: bad name {name!r} (a plain name such as mix-20-5-8)")
+    meta = store.read_meta(run, step)  # validates the run and the step
+    step = meta["step"]
+    target = (dest or policies_dir()) / name
+    if target.exists() and not replace:
+        raise ValueError(f"{target} exists (--replace to replace it)")
+    policies = {
+        team: store.restore_policy_params(run, team, step=step).variables
+        for team in meta["network_configs"]
+    }
+    config = _read_config(resolve_run(run) / "config.json")
+    packed_meta = {k: v for k, v in meta.items()}
+    if changes:
+        before = copy.deepcopy(meta["network_configs"])
+        _set_network(packed_meta, changes)
+        _set_network(config, changes)
+        config["derived_from"] = {"run": f"{run} step {step}", "network_configs": before, **changes}
+    if target.exists():
+        shutil.rmtree(target)
+    packed.write(target, packed_meta, policies)
+    (target / "config.json").write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+    link = CHECKOUT_LINKS / name
+    if dest is None and CHECKOUT_LINKS.is_dir() and not link.is_symlink():
+        link.symlink_to(Path("../../pe_mjx/assets/policies") / name)
+    store.read_meta(target)  # the shipped copy reads back
+    return target, meta
+
+
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def _read_config(path: Path) -> dict[str, Any]:
+    """A run's config.json, read with a byte cap (ValueError naming it when unreadable)."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read(MAX_CONFIG_BYTES + 1)
+        if len(data) > MAX_CONFIG_BYTES:
+            raise ValueError("larger than 1 MB")
+        config = json.loads(data)
+        if not isinstance(config, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: cannot be read as a run's config ({err})") from None
+    return config
+
+
+def check_changes(changes: dict[str, Any]) -> None:
+    """`NetworkConfig`'s own checks of the changed fields, as one line naming the flag."""
+    try:
+        NetworkConfig(**changes)
+    except ValueError as err:
+        field, _, problem = str(err).removeprefix("invalid config: ").partition(" ")
+        raise ValueError(f"--{field.replace('_', '-')} {problem}") from None
+
+
+def _set_network(tree: dict, changes: dict) -> dict:
+    """Sets `changes` in every network config of a run's config or metadata tree."""
+    for net in tree.get("network_configs", {}).values():
+        net.update(changes)
+    experiment = tree.get("experiment", {})
+    for team in ("pursuer", "evader"):
+        if "network" in experiment.get(team, {}):
+            experiment[team]["network"].update(changes)
+    return tree
+
+
+def with_network(run_copy: Path, changes: dict[str, Any], source: str) -> None:
+    """Rewrites a packed policy (`ship_policy`'s output) with `changes` (`nearest_k`,
+    `length_unit`) in both teams' network configs; records where it came from. Parameters are
+    untouched."""
+    check_changes(changes)
+    meta, policies = packed.read(run_copy)
+    before = copy.deepcopy(meta["network_configs"])
+    packed.write(run_copy, _set_network(meta, changes), policies)
+    config_file = run_copy / "config.json"
+    config = _set_network(json.loads(config_file.read_text()), changes)
+    config["derived_from"] = {"run": source, "network_configs": before, **changes}
+    config_file.write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+    store.read_meta(run_copy)  # still valid

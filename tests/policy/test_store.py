@@ -1,0 +1,30 @@
+"""pe_mjx/policy/store.py: reading a run's policies back, with one clear error for a missing,
+mismatched or damaged policy (here a shipped one; tests/ppo/test_checkpoint.py covers the
+trainer's own checkpoints, a truncated one among them)."""
+
+from __future__ import annotations
+
+import pytest
+
+import pe_mjx
+from pe_mjx.policy.resolve import load_policy
+from pe_mjx.policy.shipped import resolve_run
+from pe_mjx.policy.store import CheckpointError
+
+SHIPPED = resolve_run("mix-20-5-8")
+
+
+def test_missing_and_mismatched_checkpoints_give_clear_errors(tmp_path):
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_policy(tmp_path / "nowhere", team="pursuer")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(CheckpointError, match="no checkpoints"):
+        load_policy(tmp_path / "empty", team="pursuer")
+    with pytest.raises(CheckpointError, match="unknown team"):
+        load_policy(SHIPPED, team="referee")
+    other = pe_mjx.get_preset("4-1-2")
+    other = other.replace(
+        pursuer=other.pursuer.__class__(**{**other.pursuer.__dict__, "num_speeds": 4})
+    )
+    with pytest.raises(CheckpointError, match="actions"):
+        load_policy(SHIPPED, team="pursuer", env_config=other)

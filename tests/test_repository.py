@@ -1,0 +1,56 @@
+"""The repository stays a product, not a run archive (train/README.md, DEVELOPERS rules): a small
+tracked tree, no TensorBoard events, one resumable checkpoint per run in progress and none of a
+finished run's train state. Reads `git ls-files` of this checkout (tracked and staged files)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+MAX_TREE_BYTES = 25 * 10**6
+MAX_FILES = 800
+MAX_FILE_BYTES = 10**6
+
+
+def tracked() -> dict[str, int]:
+    """Tracked path -> its size in bytes (paths deleted in the work tree are left out)."""
+    out = subprocess.run(
+        ["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True, timeout=60
+    ).stdout.decode()
+    paths = [p for p in out.split("\0") if p]
+    return {p: (ROOT / p).stat().st_size for p in paths if (ROOT / p).is_file()}
+
+
+def _in_progress_checkpoint(path: str) -> bool:
+    parts = Path(path).parts
+    return parts[:2] == ("train", "unfinished") and "checkpoints" in parts
+
+
+def test_the_tracked_tree_is_small():
+    files = tracked()
+    assert sum(files.values()) < MAX_TREE_BYTES, f"{sum(files.values()):,} bytes tracked"
+    assert len(files) < MAX_FILES, f"{len(files)} files tracked"
+    large = [p for p, n in files.items() if n > MAX_FILE_BYTES and not _in_progress_checkpoint(p)]
+    assert large == [], "files over 1 MB outside the checkpoints of runs in progress"
+
+
+def test_no_tensorboard_events_and_no_train_state_of_a_finished_run():
+    files = tracked()
+    assert [p for p in files if ".tfevents." in p] == []
+    steps: dict[Path, set[str]] = {}
+    for path in files:
+        parts = Path(path).parts
+        if parts[0] == "train" and "checkpoints" in parts:
+            at = parts.index("checkpoints")
+            run, step = Path(*parts[:at]), parts[at + 1]
+            steps.setdefault(run, set()).add(step)
+            if parts[1] != "unfinished":  # finished runs keep their policies only
+                assert parts[at + 2] != "train", path
+    for run, found in steps.items():
+        if run.parts[1] == "unfinished":
+            assert len(found) == 1, f"{run} tracks checkpoints {sorted(found)}: keep the latest"
+    for run in {Path(*Path(p).parts[:3]) for p in files if Path(p).parts[1:2] == ("runs",)}:
+        if run.name != "README.md":
+            assert (ROOT / run / "config.json").is_file(), run
+            assert (ROOT / run / "curves.csv.gz").is_file(), run
