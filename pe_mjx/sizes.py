@@ -108,6 +108,14 @@ def check_evaluation(env: Any, trials: int, record: int, flag: str = "--trials")
     check_memory(f"--record {record:,}", record * env.max_steps * frame, "the recorded episodes")
 
 
+def check_recording(env: Any, arenas: int, steps: int, flag: str = "--steps") -> None:
+    """`steps` recorded frames of `arenas` arenas (every agent's pose each step) fit in
+    memory (`pe-mjx view --export`)."""
+    p, e, _ = _counts(env)
+    frame = arenas * (p + e) * 3 * FLOAT_BYTES
+    check_memory(f"{flag} {steps:,}", steps * frame, "the recorded frames")
+
+
 _REPR = reprlib.Repr()
 _REPR.maxlevel = 3
 _REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = _REPR.maxset = 6

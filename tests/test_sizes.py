@@ -162,3 +162,13 @@ def test_the_bootstrap_of_the_trial_cap_takes_bounded_memory_and_the_same_number
         tracemalloc.stop()
     assert low <= ratio <= high
     assert peak < 400e6, f"{peak / 1e6:.0f} MB"
+
+
+def test_view_export_steps_are_checked_against_the_recording_memory(tmp_path):
+    """`pe-mjx view --export` keeps every recorded frame: an absurd --steps is one line."""
+    result = _cli(
+        "view", "--preset", "20-5-8", "--backend", "kinematic", "--export",
+        str(tmp_path / "rec"), "--steps", str(10**13), cwd=tmp_path,
+    )  # fmt: skip
+    _one_error_line(result, "--steps", "memory")
+    assert list(tmp_path.iterdir()) == []

@@ -83,6 +83,13 @@ def check_view_args(args: ViewArgs) -> None:
         if not root.is_dir():
             fail(f"--policy-roots: {root} is not a directory")
     if args.export is not None:
+        from pe_mjx import sizes
+        from pe_mjx.config import get_preset
+
+        try:
+            sizes.check_recording(get_preset(o.preset), o.arenas or 1, args.steps)
+        except ValueError as err:
+            fail(str(err))
         for suffix in (".viser", ".html"):
             if args.export.with_suffix(suffix).exists():
                 fail(f"--export: {args.export.with_suffix(suffix)} exists; refusing to overwrite")
@@ -117,7 +124,7 @@ def run_view(args: ViewArgs) -> None:
             fail(str(err))
         print(f"wrote {paths[0]} and {paths[1]}")
         return
-    serve(args.viewer, traj)
+    serve(args.viewer, traj, policies)
 
 
 def export(
@@ -165,7 +172,7 @@ def _live_frames(options: ViewerOptions, steps: int, policies: dict):
     return frames, config, arenas
 
 
-def serve(options: ViewerOptions, traj=None) -> None:
+def serve(options: ViewerOptions, traj=None, policies: dict | None = None) -> None:
     """Serves the viewer until Ctrl-C (a replay in its own scene)."""
     from pe_mjx.viewer.app import start_viewer
 
@@ -173,7 +180,7 @@ def serve(options: ViewerOptions, traj=None) -> None:
         options = dataclasses.replace(options, preset=traj.config.name)
     viewer = None
     try:  # a Ctrl-C at any point from here on stops the server it started
-        viewer = start_viewer(options, replay=traj, wait=False)
+        viewer = start_viewer(options, replay=traj, wait=False, policies=policies)
         print(f"pe-mjx view: open {viewer.url} in a browser (Ctrl-C stops the server)", flush=True)
         while True:
             # Short sleeps: a SIGINT delivered to another thread (the server's) only sets a flag

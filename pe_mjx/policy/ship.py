@@ -23,10 +23,12 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import shutil
 from pathlib import Path
 from typing import Any
 
+from pe_mjx import outputs
 from pe_mjx.experiment import NetworkConfig
 from pe_mjx.policy import packed, store
 from pe_mjx.policy.shipped import policies_dir, resolve_run
@@ -67,10 +69,20 @@ def ship_policy(
         _set_network(packed_meta, changes)
         _set_network(config, changes)
         config["derived_from"] = {"run": f"{run} step {step}", "network_configs": before, **changes}
-    if target.exists():
-        shutil.rmtree(target)
-    packed.write(target, packed_meta, policies)
-    (target / "config.json").write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+    # Built in a temporary beside the target, then one rename: a failure or Ctrl-C midway
+    # leaves the target as it was (`pe_mjx.outputs`).
+    target.parent.mkdir(parents=True, exist_ok=True)
+    stage = outputs.temp_path(target, keep_suffix=False)
+    stage.mkdir()
+    try:
+        packed.write(stage, packed_meta, policies)
+        (stage / "config.json").write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+        if target.exists():  # --replace
+            shutil.rmtree(target)
+        os.replace(stage, target)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
     link = CHECKOUT_LINKS / name
     if dest is None and CHECKOUT_LINKS.is_dir() and not link.is_symlink():
         link.symlink_to(Path("../../pe_mjx/assets/policies") / name)

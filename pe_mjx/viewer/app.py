@@ -58,6 +58,7 @@ class Viewer(SceneCommands, RecordingCommands, TrainingView):
         options: ViewerOptions,
         replay: Trajectory | None = None,
         training: bool = False,
+        policies: dict[str, Any] | None = None,
     ):
         import viser
 
@@ -79,6 +80,9 @@ class Viewer(SceneCommands, RecordingCommands, TrainingView):
                 flush=True,
             )
         self.options = options
+        # Policies the caller already resolved for options.pursuers/evaders (`pe-mjx view`):
+        # the first live run plays them instead of restoring each checkpoint again.
+        self._resolved = policies
         access = PolicyAccess.default(options.policy_roots)
         self.policy_access = access.allowing(
             *(p for p in (options.pursuers, options.evaders) if p.strip() not in ("", *POLICIES))
@@ -422,6 +426,7 @@ def start_viewer(
     replay: Trajectory | None = None,
     training: bool = False,
     wait: bool = True,
+    policies: dict[str, Any] | None = None,
     **overrides: Any,
 ) -> Viewer:
     """Starts the viewer (server, GUI, loop thread) and, with `wait`, blocks until the first frame.
@@ -432,9 +437,11 @@ def start_viewer(
       replay: a trajectory to replay instead of a live run.
       training: an empty viewer fed by `Viewer.training_update` (``pe-mjx train --view``).
       wait: block until the first frame has been sent (not for `training`).
+      policies: team -> `Policy` already resolved for the options' `pursuers`/`evaders` (and
+        `deterministic`), played by the first live run instead of being loaded again.
     """
     options = dataclasses.replace(options or ViewerOptions(), **overrides)
-    viewer = Viewer(options, replay=replay, training=training)
+    viewer = Viewer(options, replay=replay, training=training, policies=policies)
     if wait and not training:
         try:
             viewer.wait_ready()

@@ -37,6 +37,7 @@ class SceneCommands:
     playing: bool
     speed: float
     policy_access: PolicyAccess
+    _resolved: dict[str, Policy] | None
 
     # ------------------------------------------------------------------ playback
 
@@ -102,7 +103,9 @@ class SceneCommands:
         o = self.options
         config = get_preset(o.preset)
         self._status(f"compiling `{config.name}` ({o.backend})...")
-        policies = self._policies(config, {"pursuer": o.pursuers, "evader": o.evaders}, None)
+        policies, self._resolved = self._resolved, None  # the caller's, once
+        if policies is None:
+            policies = self._policies(config, {"pursuer": o.pursuers, "evader": o.evaders}, None)
         run = LiveRun(config, policies, o.arenas, o.backend, o.seed)
         self._set_source(LiveSource(run, o.trail_length))
 

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from pe_mjx import outputs
 from pe_mjx.config import get_preset
 from pe_mjx.names import TEAMS
 from pe_mjx.trajectory import Trajectory
@@ -119,9 +120,7 @@ def write_recording(stem: Path, recording: bytes) -> tuple[Path, Path]:
             raise FileExistsError(f"{path} exists; refusing to overwrite it")
     payloads: tuple[bytes, bytes] = (recording, html_page(recording).encode("utf-8"))
     for path, payload in zip(paths, payloads, strict=True):
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_bytes(payload)
-        tmp.replace(path)
+        outputs.write_file(path, payload)  # a temporary beside it, one rename
     return paths
 
 

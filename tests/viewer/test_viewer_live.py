@@ -95,3 +95,31 @@ def test_require_chromium_fails_under_ci(monkeypatch):
     monkeypatch.setenv("CI", "false")
     with pytest.raises(pytest.skip.Exception):
         require_chromium()
+
+
+def test_a_viewer_plays_the_policies_it_is_given_without_loading_them_again(monkeypatch):
+    """`pe-mjx view` resolves --pursuers/--evaders once (for its error lines) and hands them to
+    the viewer: the first live run plays those, restoring no checkpoint a second time."""
+    from pe_mjx.config import get_preset
+    from pe_mjx.names import TEAMS
+    from pe_mjx.viewer import commands, start_viewer
+    from pe_mjx.viewer.live import load_team_policy
+
+    config = get_preset("2-1-1")
+    given = {t: load_team_policy("scripted", config, t) for t in TEAMS}
+    loaded = []
+
+    def counting(*args, **kwargs):
+        loaded.append(args[0])
+        return load_team_policy(*args, **kwargs)
+
+    monkeypatch.setattr(commands, "load_team_policy", counting)
+    viewer = start_viewer(
+        preset="2-1-1", backend="kinematic", pursuers="scripted", evaders="scripted", port=0,
+        verbose=False, policies=given,
+    )  # fmt: skip
+    try:
+        assert loaded == []
+        assert all(viewer.source.run.policies[t] is given[t] for t in TEAMS)
+    finally:
+        viewer.stop()
