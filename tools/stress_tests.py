@@ -64,19 +64,9 @@ def main() -> None:
     results = []
     try:
         for i in range(args.runs):
-            tic = time.monotonic()
             cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *args.tests]
-            try:
-                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
-                code, tail = proc.returncode, proc.stdout[-12000:]
-            except subprocess.TimeoutExpired:
-                code, tail = "timeout", ""
-            row = {
-                "run": i,
-                "exit": code,
-                "seconds": round(time.monotonic() - tic, 1),
-                "load_avg_1min": os.getloadavg()[0],
-            }
+            row, tail = _timed_run(i, cmd, args.timeout)
+            code = row["exit"]
             print(json.dumps(row), flush=True)
             if code != 0:
                 row["tail"] = tail
@@ -140,6 +130,25 @@ TRAIN = (
     "--pursuer.network.width 8 --pursuer.network.num-heads 2 --pursuer.network.hidden 16 "
     "--eval-every 0 --checkpoint-every 20 --no-progress --out {out}"
 )
+
+
+def _timed_run(
+    run: int, cmd: list[str], timeout: float, env: dict | None = None
+) -> tuple[dict, str]:
+    """Runs `cmd` once: its row (run, exit code or "timeout", seconds, load) and stdout's tail."""
+    tic = time.monotonic()
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+        code, tail = proc.returncode, proc.stdout[-12000:]
+    except subprocess.TimeoutExpired:
+        code, tail = "timeout", ""
+    row = {
+        "run": run,
+        "exit": code,
+        "seconds": round(time.monotonic() - tic, 1),
+        "load_avg_1min": round(os.getloadavg()[0], 2),
+    }
+    return row, tail
 
 
 def classify(code: int | str, stderr: str) -> str:
@@ -398,24 +407,8 @@ def browser_main(argv: list[str]) -> None:
     results = []
     try:
         for i in range(args.runs):
-            tic = time.monotonic()
-            try:
-                proc = subprocess.run(
-                    _pytest([args.test]),
-                    capture_output=True,
-                    text=True,
-                    timeout=args.timeout,
-                    env=env,
-                )
-                code, tail = proc.returncode, proc.stdout[-12000:]
-            except subprocess.TimeoutExpired:
-                code, tail = "timeout", ""
-            row = {
-                "run": i,
-                "exit": code,
-                "seconds": round(time.monotonic() - tic, 1),
-                "load_avg_1min": round(os.getloadavg()[0], 2),
-            }
+            row, tail = _timed_run(i, _pytest([args.test]), args.timeout, env)
+            code = row["exit"]
             print(json.dumps(row), flush=True)
             if code != 0:
                 row["tail"] = tail

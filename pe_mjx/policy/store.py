@@ -171,21 +171,34 @@ def with_fallback(
     a warning line and that one's reading."""
     if step is not None:
         return read(step)
-    latest = latest_step(run_dir)
     try:
-        return read(latest)
+        return read(latest_step(run_dir))
     except DamagedCheckpointError as err:
-        if not any(s < latest for s in all_steps(run_dir)):
-            raise  # the run's only checkpoint
-        found = earlier_intact(run_dir, latest, read)
-        if found is None:
-            raise DamagedCheckpointError(
-                f"{err}; no earlier checkpoint of {run_dir} is intact either"
-            ) from None
-        if not fallback:
-            raise DamagedCheckpointError(f"{err}; {intact_hint(run_dir, found[0])}") from None
+        found = intact_instead(run_dir, err, read, fallback)
         warn_fallback(err, found[0], doing)
         return found[1]
+
+
+def intact_instead(
+    run_dir: Path,
+    err: Exception,
+    read: Callable[[int], T],
+    fallback: bool,
+    either: str = "is intact",
+) -> tuple[int, T]:
+    """After the latest checkpoint failed with `err`: (step, `read(step)`) of the latest intact
+    earlier one when `fallback`; otherwise, or when there is none, the error that says so."""
+    latest = latest_step(run_dir)
+    if not any(s < latest for s in all_steps(run_dir)):
+        raise err  # the run's only checkpoint
+    found = earlier_intact(run_dir, latest, read)
+    if found is None:
+        raise DamagedCheckpointError(
+            f"{err}; no earlier checkpoint of {run_dir} {either} either"
+        ) from None
+    if not fallback:
+        raise DamagedCheckpointError(f"{err}; {intact_hint(run_dir, found[0])}") from None
+    return found
 
 
 def _is_int(value: Any) -> bool:

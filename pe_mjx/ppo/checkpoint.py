@@ -41,9 +41,8 @@ from pe_mjx.policy.store import (
     CheckpointError,
     DamagedCheckpointError,
     all_steps,
-    earlier_intact,
     everywhere,
-    intact_hint,
+    intact_instead,
     latest_step,
     manager,
     quiet_logs,
@@ -324,16 +323,7 @@ def _set_aside(run_dir: Path, steps: list[int], err: Exception, intact: int) -> 
 def _fall_back(run_dir: Path, err: Exception, read: Any, fallback: bool) -> tuple[int, Any]:
     """After the latest checkpoint failed with `err`: (step, reading) of the latest intact one,
     the damaged ones set aside, with `fallback`; else the `DamagedCheckpointError` naming it."""
-    latest = latest_step(run_dir)
-    if not any(s < latest for s in all_steps(run_dir)):
-        raise err  # the run's only checkpoint
-    found = earlier_intact(run_dir, latest, read)
-    if found is None:
-        raise DamagedCheckpointError(
-            f"{err}; no earlier checkpoint of {run_dir} can be resumed either"
-        ) from None
-    if not fallback:
-        raise DamagedCheckpointError(f"{err}; {intact_hint(run_dir, found[0])}") from None
+    found = intact_instead(run_dir, err, read, fallback, either="can be resumed")
     _set_aside(run_dir, [s for s in all_steps(run_dir) if s > found[0]], err, found[0])
     return found
 
