@@ -43,6 +43,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "policy.scripted",
         "policy.inference",
         "policy.packed",
+        "policy.quiet",
         "policy.store",
         "policy.resolve",
         "policy.export",

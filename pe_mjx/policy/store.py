@@ -17,10 +17,8 @@ latest intact earlier checkpoint; `fallback=True` (`read_meta`, `restore_policy_
 
 from __future__ import annotations
 
-import contextlib
-import logging
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple, NoReturn, TypeVar
 
@@ -35,6 +33,7 @@ from pe_mjx.names import TEAMS
 from pe_mjx.networks import make_network
 from pe_mjx.policy import packed
 from pe_mjx.policy.inference import dummy_obs, init_normalizer
+from pe_mjx.policy.quiet import quiet_logs
 from pe_mjx.policy.shipped import resolve_run
 
 FORMAT_VERSION = 2
@@ -85,21 +84,6 @@ def warn_fallback(err: Exception, step: int, doing: str) -> None:
 def short_error(err: Exception, limit: int = 300) -> str:
     """`err` in one line: its type and message, whitespace collapsed, cut at `limit`."""
     return one_line(f"{type(err).__name__}: {err}", limit)
-
-
-@contextlib.contextmanager
-def quiet_logs() -> Iterator[None]:
-    """Silences orbax's and absl's logging while a checkpoint is read: a damaged file is reported
-    as one `CheckpointError`, not followed by pages of library tracebacks."""
-    loggers = [logging.getLogger(name) for name in ("absl", "orbax", "tensorstore")]
-    levels = [logger.level for logger in loggers]
-    for logger in loggers:
-        logger.setLevel(logging.CRITICAL + 1)
-    try:
-        yield
-    finally:
-        for logger, level in zip(loggers, levels, strict=True):
-            logger.setLevel(level)
 
 
 def manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:

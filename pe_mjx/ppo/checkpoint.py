@@ -33,6 +33,7 @@ import orbax.checkpoint as ocp
 
 from pe_mjx import interrupts
 from pe_mjx.names import TEAMS
+from pe_mjx.policy.quiet import quiet_logs
 from pe_mjx.policy.shipped import resolve_run
 from pe_mjx.policy.store import (
     CHECKPOINT_DIR,
@@ -45,7 +46,6 @@ from pe_mjx.policy.store import (
     intact_instead,
     latest_step,
     manager,
-    quiet_logs,
     read_meta,
     short_error,
 )
