@@ -62,42 +62,14 @@ def build_controls(server: Any, guard: GuiGuard, options: Any, mode: str) -> Con
     `options` (`app.ViewerOptions`), and registers each control's rule with `guard`."""
     c = Controls()
     gui = server.gui
-    o = options
     c.status = gui.add_markdown("starting...")
     c.error = gui.add_markdown("", visible=False)
-    with gui.add_folder("Playback"):
-        c.play = gui.add_button("Play", icon=None)
-        c.pause = gui.add_button("Pause")
-        c.step = gui.add_button("Step")
-        c.speed = gui.add_slider(
-            "Steps/s", min=1.0, max=MAX_SPEED, step=1.0, initial_value=o.speed or MAX_SPEED
-        )
-        c.max_speed = gui.add_checkbox("Max speed", initial_value=o.speed <= 0)
-        c.trails = gui.add_checkbox("Trails", initial_value=o.trails)
-        c.loop = gui.add_checkbox("Loop episodes", initial_value=o.loop)
-        c.frame = gui.add_slider(
-            "Frame", min=0, max=1, step=1, initial_value=0, visible=mode == "replay"
-        )
-    with gui.add_folder("Scene", visible=mode == "live") as c.scene_folder:
-        preset = o.preset if o.preset in PRESETS else next(iter(PRESETS))
-        cfg = get_preset(preset)
-        c.preset = gui.add_dropdown("Preset", tuple(PRESETS), initial_value=preset)
-        c.pursuers = gui.add_number(
-            "Pursuers", cfg.pursuer.num_agents, min=1, max=MAX_COUNT, step=1
-        )
-        c.evaders = gui.add_number("Evaders", cfg.evader.num_agents, min=1, max=MAX_COUNT, step=1)
-        c.obstacles = gui.add_number(
-            "Obstacles", cfg.arena.num_obstacles, min=0, max=MAX_COUNT, step=1
-        )
-        c.arenas = gui.add_number("Arenas", o.arenas, min=1, max=MAX_ARENAS, step=1)
-        c.backend = gui.add_dropdown("Backend", BACKENDS, initial_value=o.backend)
-        c.seed = gui.add_number("Seed", o.seed, min=0, max=SEED_MAX, step=1)
-        c.reset = gui.add_button("Reset")
-        c.apply = gui.add_button("Apply scene")
+    _playback(gui, c, options, mode)
+    _scene(gui, c, options, mode)
     with gui.add_folder("Policies", visible=mode == "live") as c.policy_folder:
-        c.pursuer_policy = gui.add_text("Pursuer policy", o.pursuers)
-        c.evader_policy = gui.add_text("Evader policy", o.evaders)
-        c.deterministic = gui.add_checkbox("Greedy", initial_value=o.deterministic)
+        c.pursuer_policy = gui.add_text("Pursuer policy", options.pursuers)
+        c.evader_policy = gui.add_text("Evader policy", options.evaders)
+        c.deterministic = gui.add_checkbox("Greedy", initial_value=options.deterministic)
         c.load = gui.add_button("Load policies")
     with gui.add_folder("Attention", visible=mode != "replay") as c.att_folder:
         c.att_show = gui.add_checkbox("Show attention", initial_value=False)
@@ -114,40 +86,59 @@ def build_controls(server: Any, guard: GuiGuard, options: Any, mode: str) -> Con
     c.counters = gui.add_markdown("")
     c.training = gui.add_markdown("", visible=mode == "training")
     gui.add_markdown(legend_markdown())
-    # What a browser may change, and how; every other element is read-only to it.
-    click, flag, whole = Rule("button"), Rule("bool"), Rule("int")
-    guard.add_all(
-        [
-            (c.play, click),
-            (c.pause, click),
-            (c.step, click),
-            (c.speed, Rule("float")),
-            (c.max_speed, flag),
-            (c.trails, flag),
-            (c.loop, flag),
-            (c.frame, whole),
-            (c.preset, Rule("choice")),
-            (c.pursuers, whole),
-            (c.evaders, whole),
-            (c.obstacles, whole),
-            (c.arenas, whole),
-            (c.backend, Rule("choice")),
-            (c.seed, whole),
-            (c.reset, click),
-            (c.apply, click),
-            (c.pursuer_policy, Rule("text")),
-            (c.evader_policy, Rule("text")),
-            (c.deterministic, flag),
-            (c.load, click),
-            (c.att_show, flag),
-            (c.att_team, Rule("choice")),
-            (c.att_arena, whole),
-            (c.att_agent, whole),
-            (c.record, click),
-            (c.export, click),
-        ]
-    )
+    _register(guard, c)
     return c
+
+
+def _playback(gui: Any, c: Controls, o: Any, mode: str) -> None:
+    with gui.add_folder("Playback"):
+        c.play = gui.add_button("Play", icon=None)
+        c.pause = gui.add_button("Pause")
+        c.step = gui.add_button("Step")
+        c.speed = gui.add_slider(
+            "Steps/s", min=1.0, max=MAX_SPEED, step=1.0, initial_value=o.speed or MAX_SPEED
+        )
+        c.max_speed = gui.add_checkbox("Max speed", initial_value=o.speed <= 0)
+        c.trails = gui.add_checkbox("Trails", initial_value=o.trails)
+        c.loop = gui.add_checkbox("Loop episodes", initial_value=o.loop)
+        c.frame = gui.add_slider(
+            "Frame", min=0, max=1, step=1, initial_value=0, visible=mode == "replay"
+        )
+
+
+def _scene(gui: Any, c: Controls, o: Any, mode: str) -> None:
+    with gui.add_folder("Scene", visible=mode == "live") as c.scene_folder:
+        preset = o.preset if o.preset in PRESETS else next(iter(PRESETS))
+        cfg = get_preset(preset)
+        c.preset = gui.add_dropdown("Preset", tuple(PRESETS), initial_value=preset)
+        c.pursuers = gui.add_number(
+            "Pursuers", cfg.pursuer.num_agents, min=1, max=MAX_COUNT, step=1
+        )
+        c.evaders = gui.add_number("Evaders", cfg.evader.num_agents, min=1, max=MAX_COUNT, step=1)
+        c.obstacles = gui.add_number(
+            "Obstacles", cfg.arena.num_obstacles, min=0, max=MAX_COUNT, step=1
+        )
+        c.arenas = gui.add_number("Arenas", o.arenas, min=1, max=MAX_ARENAS, step=1)
+        c.backend = gui.add_dropdown("Backend", BACKENDS, initial_value=o.backend)
+        c.seed = gui.add_number("Seed", o.seed, min=0, max=SEED_MAX, step=1)
+        c.reset = gui.add_button("Reset")
+        c.apply = gui.add_button("Apply scene")
+
+
+def _register(guard: GuiGuard, c: Controls) -> None:
+    """What a browser may change, and how; every other element is read-only to it."""
+    buttons = (c.play, c.pause, c.step, c.reset, c.apply, c.load, c.record, c.export)
+    flags = (c.max_speed, c.trails, c.loop, c.deterministic, c.att_show)
+    wholes = (c.frame, c.pursuers, c.evaders, c.obstacles, c.arenas, c.seed)
+    rules = [
+        (Rule("button"), buttons),
+        (Rule("bool"), flags),
+        (Rule("int"), (*wholes, c.att_arena, c.att_agent)),
+        (Rule("choice"), (c.preset, c.backend, c.att_team)),
+        (Rule("float"), (c.speed,)),
+        (Rule("text"), (c.pursuer_policy, c.evader_policy)),
+    ]
+    guard.add_all([(handle, rule) for rule, handles in rules for handle in handles])
 
 
 def counters_markdown(rows: list[dict[str, Any]], config: EnvConfig, label: str = "t") -> str:
