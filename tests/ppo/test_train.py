@@ -104,71 +104,86 @@ def test_a_length_unit_is_what_the_learner_stores_and_its_policy_reads():
     assert float(policy.variables["length_scale"]) == 2.0
 
 
+SEEDS = (0, 1, 2)
+"""The learning tests train these three seeds, the first three, and judge their mean: at these
+small budgets single seeds vary widely (one in six fails to learn), so no one seed is a fair
+sample, and the mean of three holds with a margin on every triple measured."""
+
+
+def _train_seeds(trainer: Trainer, key: jax.Array) -> list[dict[str, jax.Array]]:
+    """`trainer.evaluate` (on `key`'s arenas) after training each of `SEEDS` with `trainer`'s
+    config; one compiled iteration serves every seed."""
+    step = jax.jit(trainer.iteration, donate_argnums=0)
+    evaluate = jax.jit(trainer.evaluate)
+    out = []
+    for seed in SEEDS:
+        state = trainer.init(seed)
+        for _ in range(trainer.config.num_iterations):
+            state, metrics = step(state)
+        assert all(np.isfinite(float(v)) for k, v in metrics.items() if k.startswith("reward/"))
+        out.append(evaluate(state, key))
+    return out
+
+
 def test_pursuers_learn_to_capture_the_scripted_evader():
-    """Pursuers trained briefly capture clearly more often than the untrained policy.
+    """Pursuers trained briefly capture clearly more often than untrained ones, on the mean of
+    three seeds.
 
     4-1-2 arena, kinematic backend, against the scripted (fleeing) evader, 128 evaluation
-    episodes each with fixed seeds. Measured when written (seed 0, 160 iterations): untrained
-    0.016, trained 0.91 (0.02 / 0.31 / 0.72 / 0.91 after 40 / 80 / 120 / 160 iterations).
-    The margin of 0.2 over 128 Bernoulli episodes is > 5 standard errors. Learning is
-    seed-dependent at this budget (seeds 1 and 2 reached 0.64 and 0.02), so the seed is fixed.
+    episodes each with fixed arenas, 160 iterations of 64 arenas x 32 steps. Measured when
+    written (2026-12-05): untrained 0.016-0.023; after 80 / 120 / 160 iterations seeds 0-5
+    reach 0.77 / 0.90 / 0.99, 0.84 / 0.81 / 0.95, 0.06 / 0.23 / 0.62, 0.66 / 0.45 / 0.84,
+    0.23 / 0.29 / 0.39 and 0.33 / 0.48 / 0.95. The mean of seeds 0-2 is 0.85 (seeds 3-5:
+    0.73) against a bound of untrained + 0.4; 128 Bernoulli episodes give each seed a standard
+    error under 0.045. (With 32 arenas a seed, half the batch, two seeds in six had not begun to
+    learn after 160 iterations.)
     """
     config = default_config("4-1-2").override(
         {
             "backend": "kinematic",
             "evader.policy": "scripted",
-            "ppo.num_envs": 32,
+            "ppo.num_envs": 64,
             "ppo.unroll_length": 32,
-            "env_steps": 32 * 32 * 160,
+            "env_steps": 64 * 32 * 160,
             "ppo.learning_rate": 1e-3,
             "eval_envs": 128,
             "eval_every": 0,
         }
     )
     trainer = Trainer(config)
-    state = trainer.init()
-    evaluate = jax.jit(trainer.evaluate)
     key = jax.random.key(123)
-    untrained = evaluate(state, key)
-    step = jax.jit(trainer.iteration, donate_argnums=0)
-    for _ in range(config.num_iterations):
-        state, metrics = step(state)
-    trained = evaluate(state, key)
-    before, after = (
-        float(m["eval/pursuer_vs_scripted/success_rate"]) for m in (untrained, trained)
-    )
-    print(f"success vs scripted evader: untrained {before:.3f}, trained {after:.3f}")
-    assert after >= before + 0.2
+    untrained = [jax.jit(trainer.evaluate)(trainer.init(seed), key) for seed in SEEDS]
+    trained = _train_seeds(trainer, key)
+
+    def mean(results: list[dict[str, jax.Array]], name: str) -> float:
+        return float(np.mean([float(m[f"eval/pursuer_vs_scripted/{name}"]) for m in results]))
+
+    before, after = mean(untrained, "success_rate"), mean(trained, "success_rate")
+    print(f"success vs scripted evader, mean of seeds {SEEDS}: {before:.3f} -> {after:.3f}")
+    assert after >= before + 0.4
     # Capturing pays: the pursuers' episodic return (mean per agent) rises with success.
-    ret_before, ret_after = (
-        float(m["eval/pursuer_vs_scripted/pursuer_return"]) for m in (untrained, trained)
-    )
-    print(f"pursuer return vs scripted evader: untrained {ret_before:.1f}, trained {ret_after:.1f}")
-    assert ret_after > ret_before
-    assert np.isfinite(float(metrics["reward/pursuer/total"]))
-    assert "reward/evader/total" in metrics
+    assert mean(trained, "pursuer_return") > mean(untrained, "pursuer_return")
 
 
 def test_evaders_learn_to_outlast_random_evaders():
-    """Evaders trained briefly against the scripted pursuers survive far longer than random ones.
+    """Evaders trained briefly against the scripted pursuers survive far longer than random ones,
+    on the mean of three seeds.
 
     The default training setup of the evaders (step size 3e-3, the flee shaping of
     `training_env`), 4 scripted pursuers and 1 evader with 2 obstacles in a 4 m arena (4-1-2's
-    counts, room to run), kinematic backend, 128 evaluation episodes with fixed seeds. Measured
-    when written (seed 0): random evaders are caught after 55.5 steps on average, the untrained
-    network after 55.4; after 20 / 40 / 60 / 80 / 100 iterations 46 / 51 / 98 / 209 / 304 steps
-    (success 1.0 -> 0.77). Before the diagnosis of issue 10 (step size 3e-4, no flee shaping)
-    the evaders did not improve at all. The seed is fixed, as in the pursuers' test. Since the
-    scripted policies compute distances per component (2026-12-02, the last bit of some
-    distances changed), seed 0 reaches 77 steps after 100 iterations, seed 1 58 and seed 2 141
-    (80 iterations: 87): learning at this budget is that seed-dependent, so the test uses seed 2.
+    counts, room to run), kinematic backend, 100 iterations of 32 arenas x 32 steps, 128
+    evaluation episodes with fixed arenas. Measured when written (2026-12-05): random evaders
+    are caught after 55.5 steps on average, untrained networks after 55.1-55.7; after 100
+    iterations seeds 0-5 last 223 / 207 / 185 / 172 / 396 / 67 steps (seed 5 had not taken off
+    yet: 49 / 60 / 67 at 60 / 80 / 100). The mean of seeds 0-2 is 205 steps (seeds 3-5: 212)
+    against a bound of twice the random evaders'. Before the diagnosis of issue 10 (step size
+    3e-4, no flee shaping) the evaders did not improve at all.
     """
     config = default_config("4-1-2").override(
         {
             "backend": "kinematic",
             "pursuer.policy": "scripted",
             "env.arena.radius": 4.0,
-            "seed": 2,
             "ppo.num_envs": 32,
             "ppo.unroll_length": 32,
             "env_steps": 32 * 32 * 100,
@@ -186,14 +201,9 @@ def test_evaders_learn_to_outlast_random_evaders():
     random_length = float(
         np.mean(play_episodes(trainer.eval_env, random_pair, keys).metrics["episode/length"])
     )
-    state = trainer.init()
-    step = jax.jit(trainer.iteration, donate_argnums=0)
-    for _ in range(config.num_iterations):
-        state, _ = step(state)
-    trained = jax.jit(trainer.evaluate)(state, key)
-    length = float(trained["eval/evader_vs_scripted/length"])
-    print(f"time to capture: random evaders {random_length:.1f}, trained {length:.1f} steps")
-    assert length >= 2 * random_length
+    lengths = [float(m["eval/evader_vs_scripted/length"]) for m in _train_seeds(trainer, key)]
+    print(f"time to capture: random evaders {random_length:.1f}, trained {lengths} steps")
+    assert np.mean(lengths) >= 2 * random_length
 
 
 def test_two_devices_match_one_device(tmp_path):
