@@ -30,6 +30,7 @@ from pe_mjx.commands.common import check_writable_dir as _check_writable_dir
 from pe_mjx.commands.common import fail as _fail
 from pe_mjx.commands.export import ExportArgs, run_export
 from pe_mjx.commands.plot import PlotArgs, run_plot
+from pe_mjx.commands.rate import RateArgs, run_rate
 from pe_mjx.commands.ship import ShipArgs, run_ship
 from pe_mjx.commands.train_summary import training_summary
 from pe_mjx.commands.view import ViewArgs, run_view
@@ -474,6 +475,7 @@ def main(argv: list[str] | None = None) -> None:
         "plot": (PlotArgs, run_plot),
         "reproduce": (ReproduceArgs, run_reproduce),
         "ship": (ShipArgs, run_ship),
+        "rate": (RateArgs, run_rate),
     }
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv == ["--version"]:

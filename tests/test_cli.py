@@ -161,6 +161,7 @@ def test_every_flag_of_every_subcommand_has_help_text(capsys):
         "plot": cli.PlotArgs,
         "reproduce": cli.ReproduceArgs,
         "ship": cli.ShipArgs,
+        "rate": cli.RateArgs,
     }
     undocumented, counted = [], 0
     for name, cls in commands.items():
