@@ -42,6 +42,7 @@ SOURCES = (
     "large-scale/summary.json",
     "transfer-240-60-120-3m/results.json",
     "arena-240-60-120/results.json",
+    "recipe/recipe.json",
 )
 # Each report `pe-mjx reproduce` wrote, with the data directory that
 # experiments/results/paper_findings.py read:
@@ -127,6 +128,21 @@ def test_the_pages_other_tables_are_rows_of_their_reports():
     summary = (DATA / "large-scale" / "summary.md").read_text()
     quoted = [r for r in _table_rows(large) if SCENE_ROW.match(r)]
     assert quoted and set(quoted) <= set(_table_rows(summary))
+
+
+def test_the_recipe_tables_are_rows_of_their_reports():
+    """The recipe section quotes experiments/results/recipe.py's three tables row for row (their
+    links rebased from docs/data/recipe/ to docs/), the compute table all but its last row."""
+    page = PAGE.read_text()
+    recipe = _section(page, "## Recipe: deviations, hyperparameters, compute")
+    quoted = [r for r in _table_rows(recipe) if not r.startswith("|---")]
+    for name, rows in (("deviations", 12), ("hyperparameters", 11), ("compute", 8)):
+        report = (DATA / "recipe" / f"{name}.md").read_text().replace("](../../", "](")
+        written = [r for r in _table_rows(report) if not r.startswith("|---")]
+        on_page = [r for r in written if r in quoted]
+        assert len(on_page) >= rows, (name, len(on_page))
+        quoted = [r for r in quoted if r not in on_page]
+    assert not quoted, quoted
 
 
 def _numbers(value, out: set[str]) -> None:

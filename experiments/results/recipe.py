@@ -1,0 +1,604 @@
+"""docs/results.md's recipe as data: where it departs from the paper or fills what the paper
+leaves open, its hyperparameters beside the paper's, and what each of the page's tables cost.
+
+    python -m experiments.results.recipe [--out docs/data/recipe]
+
+Reads the code's defaults (`pe_mjx.experiment.default_config("20-5-8")`), the config and the
+curves of every committed run (`train/runs/*/config.json`, `curves.csv.gz`), the evaluation
+reports each table of the page is read from (the policies they played, `meta.seconds`), and
+the committed measurements a deviation cites (the evader diagnosis, the backend comparison, the
+seed spread); beside them `PAPER`, what the paper says of each setting, in its own words. Writes
+OUT/recipe.json and three tables, OUT/deviations.md, OUT/hyperparameters.md and OUT/compute.md,
+which docs/results.md quotes row for row (the links of these files point from OUT; the page's,
+the same rows, from docs/).
+
+Training time: a run logs one row per iteration with the wall clock (`wall_time`, UNIX
+seconds). A run resumed several times has pauses between its chunks, so its time is the sum of
+the intervals between consecutive rows, where an interval longer than `PAUSE_S` (10 minutes: an
+evaluation or a restart inside a chunk takes a few minutes at most; recipe.json gives, per run,
+the longest interval counted and the shortest pause) is a pause and counts as one median
+interval of that run (the iteration that ended it). The start-up before the first row is not
+logged and not counted. These are wall hours of the project's 2-core CPU, mostly shared with
+other jobs, so more than a run alone would take.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import gzip
+import itertools
+import json
+import re
+import statistics
+from pathlib import Path
+
+import tyro
+
+from pe_mjx.experiment import ExperimentConfig, default_config
+from pe_mjx.paper import PAPER as PAPER_TABLES
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / "docs" / "data"
+RUNS = ROOT / "train" / "runs"
+PAUSE_S = 600
+NOT_STATED = "not stated"
+# What the paper says of each setting: its value (or NOT_STATED) and the words it says it in
+# (quoted; its equations and Table I's rows transcribed), or None where it says nothing of it.
+PAPER = {
+    "algorithm": ("IPPO, one shared policy per team", "we utilize the parameter-sharing technique"),
+    "network": (NOT_STATED, None),
+    "learning_rate": (NOT_STATED, None),
+    "ppo": (NOT_STATED, None),
+    "gamma": (NOT_STATED, "γ ∈ (0,1] is a discount factor"),
+    "reward_scale": (NOT_STATED, None),
+    "pursuit_scale": ("10", "f_p = 10 / max(d_op, d_cap)"),
+    "capture": (NOT_STATED, "r_s is the reward for successful capture"),
+    "reward_constants": (NOT_STATED, "d_danger is a constant"),
+    "evader_reward": ("f_c terms and r_e only", "if e_j is not in a collision or captured"),
+    "mix_queries": (
+        "every entity's state gives a query",
+        "each agent's original state is transformed into query, key, and value components",
+    ),
+    "backend": ("no simulator named", "Timestep 0.2 s"),
+    "episode": ("0.2 s steps, 200 s episodes", "Max Iteration Time Per Episode 200 s"),
+    "budget": ("10M time steps", "By conducting training for 10 million time steps"),
+    "seeds": (NOT_STATED, None),
+    "evaluation": (
+        "100 trials per pairing, no seed, no intervals",
+        "We perform 100 trials for each comparison",
+    ),
+    "per_evader_cost": ("n' / m' in the text", "It is calculated by dividing n' by m'"),
+    "mlp_other_scenes": (
+        "left out of Tables V, VI",
+        "the policy using MLP fails to adapt to the scale change",
+    ),
+}
+# The evaluations each table of docs/results.md is read from (globs under docs/data; its test,
+# tests/test_results_doc.py, reads Tables II-VI from the same).
+TABLES = {
+    "II": ("paper-3m-scales/table-II",),
+    "III": ("paper-3m/table-III",),
+    "IV": ("paper-3m-scales/table-IV",),
+    "V": ("paper-3m-scales/table-V",),
+    "VI": ("paper-3m-scales/table-VI",),
+    "Three seeds at 20-5-8": ("coev-seeds-3m/*-s[0-9]",),
+    "240-60-120": ("large-scale/*/*",),
+}
+# A policy shipped from a seed-0 co-evolution (`mix-20-5-8-3m`), or the same parameters read
+# through k nearest entities or a 5 m length unit (`mix-20-5-8-3m-k4-5m`).
+SHIPPED = re.compile(r"(?P<run>[a-z]+-\d+-\d+-\d+)-3m(-k\d+)?(-5m)?")
+DIAGNOSIS = {"flee": "d7-flee10", "flee_and_step": "d9-at-300k"}
+LENGTH = "eval/evader_vs_scripted/length"
+NOTES = "../../experiments"  # docs/experiments, from docs/data/recipe
+DOCS = "../.."  # docs, from docs/data/recipe
+
+
+@dataclasses.dataclass(frozen=True)
+class Args:
+    out: Path = DATA / "recipe"
+    """Where recipe.json, deviations.md, hyperparameters.md and compute.md go."""
+
+
+def paper(key: str) -> str:
+    """The paper's value of `key` with the words it comes from, as a table cell."""
+    value, says = PAPER[key]
+    return value if says is None else f'{value} ("{says}")'
+
+
+def num(x: float) -> str:
+    return f"{x:g}"
+
+
+def rate(x: float) -> str:
+    """A step size as the code and the notes write it: 3e-3 (docs/results.md's number check,
+    tests/test_results_doc.py, reads decimals only; these rows are checked against the config
+    by tests/experiments/test_recipe.py)."""
+    mantissa, exponent = f"{x:.0e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def read_json(path: Path) -> dict:
+    return json.loads(path.read_text())
+
+
+def experiment(run: Path) -> ExperimentConfig:
+    return ExperimentConfig.from_dict(read_json(run / "config.json")["experiment"])
+
+
+def co_evolutions() -> dict[str, ExperimentConfig]:
+    """The seed-0 co-evolutions of Tables II-VI (`train/runs/<encoder>-<scale>-s0`)."""
+    return {run.name: experiment(run) for run in sorted(RUNS.glob("*-s0"))}
+
+
+def recipe_differences(runs: dict[str, ExperimentConfig]) -> list[str]:
+    """The fields in which any co-evolution departs from `default_config` of its scene."""
+    return sorted({f for c in runs.values() for f in default_config(c.preset).differences(c)})
+
+
+def training_time(run: str) -> dict:
+    """Hours of training a run's curves record (the module doc gives the rule)."""
+    with gzip.open(RUNS / run / "curves.csv.gz", "rt", newline="") as f:
+        rows = [(int(r["env_steps"]), float(r["wall_time"])) for r in csv.DictReader(f)]
+    times = [t for _, t in rows]
+    intervals = [b - a for a, b in itertools.pairwise(times)]
+    median = statistics.median(intervals)
+    pauses = [i for i in intervals if i > PAUSE_S]
+    counted = [i for i in intervals if i <= PAUSE_S]
+    return {
+        "env_steps": rows[-1][0],
+        "rows": len(rows),
+        "median_interval_s": round(median, 1),
+        "longest_counted_s": round(max(counted), 1),
+        "pauses": len(pauses),
+        "shortest_pause_s": round(min(pauses), 1) if pauses else None,
+        "paused_h": round(sum(pauses) / 3600, 2),
+        "hours": round((sum(counted) + median * len(pauses)) / 3600, 2),
+    }
+
+
+def run_of(spec: str) -> str | None:
+    """The directory under train/runs whose curves trained the policy `spec` (a run, a shipped
+    name or a path), or None where no committed run logged it (train/seeds keeps policies only)."""
+    name = Path(spec).name
+    if (RUNS / name / "curves.csv.gz").is_file():
+        return name
+    match = SHIPPED.fullmatch(name)
+    if match is None:
+        return None
+    run, shipped = f"{match['run']}-s0", ROOT / "assets" / "policies" / f"{match['run']}-3m"
+    if (
+        read_json(shipped / "config.json")["experiment"]
+        != read_json(RUNS / run / "config.json")["experiment"]
+    ):
+        raise SystemExit(f"recipe: error: {shipped} is not the policy of train/runs/{run}")
+    return run
+
+
+def evaluation_seconds(results: dict) -> float:
+    """The wall time of the `pe-mjx evaluate` call that wrote `results` (`meta.seconds`) plus
+    the play time recorded with each pairing it kept from an earlier call (whose start-up is
+    not recorded)."""
+    kept = sum(p["seconds"] for p in results["pairings"] if p.get("kept"))
+    return results["meta"]["seconds"] + kept
+
+
+def compute() -> dict:
+    """Per table of the page: the runs that trained its policies and its evaluations' time."""
+    tables = {}
+    for table, patterns in TABLES.items():
+        reports = sorted(p for g in patterns for p in DATA.glob(f"{g}/results.json"))
+        results = [read_json(p) for p in reports]
+        metas = [r["meta"] for r in results]
+        specs = {s for m in metas for s in m["pursuers"] + m["evaders"]} - {"scripted", "random"}
+        trained_by = {spec: run_of(spec) for spec in specs}
+        tables[table] = {
+            "evaluations": [str(p.parent.relative_to(DATA)) for p in reports],
+            "evaluation_h": sum(evaluation_seconds(r) for r in results) / 3600,
+            "devices": sorted({d for m in metas for d in m["devices"]}),
+            "runs": sorted({r for r in trained_by.values() if r}),
+            "not_logged": sorted(Path(s).name for s, r in trained_by.items() if r is None),
+        }
+    used = sorted({r for t in tables.values() for r in t["runs"]})
+    logged = sorted(path.parent.name for path in RUNS.glob("*/curves.csv.gz"))
+    runs = {run: training_time(run) for run in logged}
+    page = {"runs": used, "evaluation_h": sum(t["evaluation_h"] for t in tables.values())}
+    other = {"runs": sorted(set(runs) - set(used)), "evaluation_h": 0.0}
+    for t in (*tables.values(), page, other):
+        t["training_h"] = round(sum(runs[r]["hours"] for r in t["runs"]), 2)
+        t["evaluation_h"] = round(t["evaluation_h"], 2)
+        t["total_h"] = round(t["training_h"] + t["evaluation_h"], 2)
+    cores = read_json(ROOT / "docs" / "bench_train.json")["machine"]["cores"]
+    return {
+        "pause_s": PAUSE_S,
+        "machine": {"cpu_cores": cores, "gpu": None},
+        "runs": runs,
+        "tables": tables,
+        "page": page,
+        "in_no_table": other,
+    }
+
+
+def measurements() -> dict:
+    """The committed numbers the deviations table cites, each with the file it is read from."""
+    diagnosis = {r["run"]: r for r in read_json(DATA / "evader_diagnosis.json")}
+    reference = read_json(DATA / "evader_diagnosis_reference.json")["experiment"]
+    backend = read_json(DATA / "backend_training.json")
+    spread = {}
+    for method in ("mix", "mean"):
+        label = f"{method.upper()}(20,5,8)"
+        rows = read_json(DATA / "coev-seeds-3m" / method / "seeds.json")["pairings"]
+        row = next(r for r in rows if (r["pursuer"], r["evader"]) == (f"P_{label}", f"E_{label}"))
+        spread[method] = row["success_rate"]["std"]
+    return {
+        "evader_diagnosis": {
+            "source": "docs/data/evader_diagnosis.json",
+            "reference_learning_rate": reference["ppo"]["learning_rate"],
+            **{
+                key: {
+                    "changed": diagnosis[run]["changed"],
+                    "length": diagnosis[run]["curves"][LENGTH],
+                }
+                for key, run in DIAGNOSIS.items()
+            },
+        },
+        "backend": {
+            "source": "docs/data/backend_training.json",
+            "preset": backend["args"]["preset"],
+            **{r["backend"]: r["success_rate"] for r in backend["results"]},
+        },
+        "seeds": {
+            "source": "docs/data/coev-seeds-3m/{mix,mean}/seeds.json",
+            "self_match_success_std": spread,
+        },
+    }
+
+
+def team_learning_rate(config: ExperimentConfig, team: str) -> float:
+    rate = config.team(team).learning_rate
+    return config.ppo.learning_rate if rate is None else rate
+
+
+def episode_length(curve: dict) -> str:
+    return f"{curve['first']:.1f} → {curve['last']:.1f} steps in {curve['last_step']:,} env steps"
+
+
+def deviations(
+    config: ExperimentConfig, runs: dict[str, ExperimentConfig], measured: dict, env_steps: int
+) -> list[dict]:
+    """Rows (what, ours, paper, why, measured): every place the recipe departs from the paper
+    or fills what it leaves open."""
+    rows = [
+        *evader_rows(config, measured["evader_diagnosis"]),
+        *training_rows(config, runs, measured, env_steps),
+        *evaluation_rows(),
+    ]
+    keys = ("what", "ours", "paper", "why", "measured")
+    return [dict(zip(keys, row, strict=True)) for row in rows]
+
+
+def evader_rows(config: ExperimentConfig, diagnosis: dict) -> list[tuple[str, ...]]:
+    """The step size and the flee shaping that made the evaders learn, and the rewards."""
+    reward = config.env.reward
+    fast = diagnosis["flee_and_step"]["changed"]
+    fast_rate, fast_schedule = rate(fast["ppo.learning_rate"]), fast["ppo.lr_schedule"]
+    slow = rate(diagnosis["reference_learning_rate"])
+    note = f"[evader diagnosis]({NOTES}/2026-12-01-evader-diagnosis.md)"
+    flee = episode_length(diagnosis["flee"]["length"])
+    return [
+        (
+            "Adam step size",
+            f"evaders {rate(team_learning_rate(config, 'evader'))}, "
+            f"pursuers {rate(team_learning_rate(config, 'pursuer'))}",
+            f"{paper('learning_rate')} ({slow}, this project's first default, is often read "
+            "as the paper's)",
+            f"at {slow} the evaders' PPO updates barely moved their policy ({note})",
+            "with the flee shaping, the eval episode length against the scripted pursuers: "
+            f"{episode_length(diagnosis['flee_and_step']['length'])} at {fast_rate} "
+            f"({fast_schedule}), {flee} at {slow} (`evader_diagnosis.json`); the step size "
+            "without the shaping: not yet ablated",
+        ),
+        (
+            "Evaders' flee shaping (`env.reward.evader_flee`)",
+            f"{num(reward.evader_flee)} per metre gained from the nearest pursuer, up to "
+            f"{num(reward.flee_range)} m; in training only",
+            paper("evader_reward"),
+            f"a dense signal to run, with the larger step size ({note})",
+            f"alone, at {slow}: {flee}, no gain; at {fast_rate} without it: not yet ablated",
+        ),
+        (
+            "Capture reward r_s",
+            f"{num(reward.capture)} per evader to its captor",
+            paper("capture"),
+            "it must outweigh shadowing an evader at d_cap over the discounted horizon; at 50 "
+            f"the pursuers followed and did not capture ([design]({DOCS}/design.md))",
+            "not yet ablated at the paper's scales (a 4-1-2 probe in docs/design.md, no data file)",
+        ),
+        (
+            "Other reward constants",
+            f"r_c {num(reward.collision)}, d_danger {num(reward.danger_distance)} m, "
+            f"d_cap {num(reward.capture_distance)} m, r_e {num(reward.evader_alive)}",
+            paper("reward_constants"),
+            "the paper gives none; SPEC: values that train",
+            "not yet ablated",
+        ),
+    ]
+
+
+def training_rows(
+    config: ExperimentConfig, runs: dict[str, ExperimentConfig], measured: dict, env_steps: int
+) -> list[tuple[str, ...]]:
+    """The network, the PPO settings, the backend, the budget and the seeds."""
+    ppo = config.ppo
+    kinematic, mjx, preset = (measured["backend"][k] for k in ("kinematic", "mjx", "preset"))
+    spread = measured["seeds"]["self_match_success_std"]
+    return [
+        (
+            "MIX queries (`mix_queries`)",
+            f"`{config.pursuer.network.mix_queries}`: the agent's own token queries every token",
+            paper("mix_queries"),
+            f"about 6x cheaper on this CPU, the same parameters ([design]({DOCS}/design.md))",
+            "not yet ablated",
+        ),
+        (
+            "PPO settings, reward scales",
+            f"{ppo.num_envs} arenas x {ppo.unroll_length} steps, {ppo.update_epochs} epochs x "
+            f"{ppo.num_minibatches} minibatches, entropy {num(ppo.entropy_coef)}, clip "
+            f"{num(ppo.clip_epsilon)}, GAE λ {num(ppo.gae_lambda)}, γ {num(ppo.gamma)}, step "
+            f"size {ppo.lr_schedule} to 0; rewards x {num(config.pursuer.reward_scale)} "
+            f"(pursuers), x {num(config.evader.reward_scale)} (evaders); Hyperparameters below",
+            paper("ppo"),
+            "the paper gives none: common PPO values",
+            "not yet ablated",
+        ),
+        (
+            "Backend of the published numbers",
+            f"{', '.join(sorted({c.backend for c in runs.values()}))} (exact unicycle arcs) in "
+            f"every table; the code's default is {config.backend}",
+            paper("backend"),
+            "faster on this CPU: training by 14% at 20-5-8, evaluation several times "
+            f"([benchmarks]({DOCS}/benchmarks.md))",
+            f"{preset} learning test, one seed: the scripted pursuers catch "
+            f"{kinematic['mean']:.3f} ± {kinematic['ci95']:.3f} of the evader trained on "
+            f"kinematic, {mjx['mean']:.3f} ± {mjx['ci95']:.3f} on MJX (`backend_training.json`)",
+        ),
+        (
+            "Budget",
+            f"{env_steps:,} env steps per co-evolution",
+            paper("budget"),
+            "CPU time (Compute below); 10M on MJX is in progress",
+            "3M vs 10M: not yet; 1M vs 3M: "
+            f"[notes of 2026-12-02]({NOTES}/2026-12-02-paper-tables.md)",
+        ),
+        (
+            "Seeds",
+            f"seed {', '.join(sorted({str(c.seed) for c in runs.values()}))} for every method "
+            "and scale; MIX and MEAN also 1 and 2 at 20-5-8",
+            paper("seeds"),
+            f"CPU time ([notes of 2026-12-03]({NOTES}/2026-12-03-seeds.md))",
+            f"std over 3 seeds of a self-match's success at 20-5-8: {spread['mix']:.3f} (MIX), "
+            f"{spread['mean']:.3f} (MEAN)",
+        ),
+    ]
+
+
+def evaluation_rows() -> list[tuple[str, ...]]:
+    """The evaluation protocol of Tables II-VI, from their reports' `meta`."""
+    metas = [
+        read_json(DATA / TABLES[t][0] / "results.json")["meta"]
+        for t in ("II", "III", "IV", "V", "VI")
+    ]
+    trials = sorted({m["trials"] for m in metas})
+    seeds = sorted({m["seed"] for m in metas})
+    assert len(trials) == len(seeds) == 1, (trials, seeds)
+    assert not any(p == "mlp" for t in ("V", "VI") for _, p in PAPER_TABLES[t]), "paper's MLP*"
+    return [
+        (
+            "Evaluation",
+            f"{trials[0]} trials per pairing, trial seed {seeds[0]}; success ± its 95% "
+            "Student-t interval, per-evader cost [95% bootstrap interval]",
+            paper("evaluation"),
+            "the intervals show which differences the trials resolve",
+            "not yet ablated (no other trial seed played)",
+        ),
+        (
+            "Per-evader cost",
+            "mean(m') / mean(n') over the trials",
+            paper("per_evader_cost"),
+            "the paper's tables are the ratio of the means (SPEC 4)",
+            "not an ablation: the definition the paper's tables match",
+        ),
+        (
+            "MLP in another scene",
+            "its input zero-padded or cut to its training counts (SPEC 3.1); rows marked *",
+            paper("mlp_other_scenes"),
+            "every pairing of Tables V, VI played",
+            "not an ablation: Tables V, VI's MLP* rows",
+        ),
+    ]
+
+
+def hyperparameters(config: ExperimentConfig, env_steps: int) -> list[dict]:
+    """Rows (setting, pursuers, evaders, paper): every co-evolution's settings (the defaults;
+    `recipe_differences` lists where a run departs from them), "same" where both teams share one."""
+    ppo, reward = config.ppo, config.env.reward
+    net = {team: config.team(team).network for team in ("pursuer", "evader")}  # in that order
+    iteration = ppo.num_envs * ppo.unroll_length
+    same = "same"
+    rows = [
+        ("Algorithm", "IPPO, one parameter set per team", same, paper("algorithm")),
+        (
+            "Encoder width / MIX heads; policy and value heads",
+            *(f"{n.width} / {n.num_heads}; 2 x {n.hidden}" for n in net.values()),
+            paper("network"),
+        ),
+        (
+            "Adam step size",
+            rate(team_learning_rate(config, "pursuer")),
+            rate(team_learning_rate(config, "evader")),
+            paper("learning_rate"),
+        ),
+        ("Step-size schedule", f"{ppo.lr_schedule} to 0 over the budget", same, paper("ppo")),
+        (
+            "Arenas x steps per iteration; epochs x minibatches",
+            f"{ppo.num_envs} x {ppo.unroll_length} ({iteration:,} env steps); "
+            f"{ppo.update_epochs} x {ppo.num_minibatches}",
+            same,
+            paper("ppo"),
+        ),
+        (
+            "Discount γ / GAE λ",
+            f"{num(ppo.gamma)} / {num(ppo.gae_lambda)}",
+            same,
+            paper("gamma"),
+        ),
+        (
+            "Clip / entropy / value / gradient norm",
+            f"{num(ppo.clip_epsilon)} / {num(ppo.entropy_coef)} / {num(ppo.value_coef)} / "
+            f"{num(ppo.max_grad_norm)}",
+            same,
+            paper("ppo"),
+        ),
+        (
+            "Reward scale before GAE",
+            num(config.pursuer.reward_scale),
+            num(config.evader.reward_scale),
+            paper("reward_scale"),
+        ),
+        (
+            "Rewards",
+            f"r_c {num(reward.collision)}, d_danger {num(reward.danger_distance)} m, f_p = "
+            f"{num(reward.pursuit_scale)} / max(d, {num(reward.capture_distance)} m), "
+            f"r_s {num(reward.capture)}",
+            f"r_c {num(reward.collision)}, d_danger {num(reward.danger_distance)} m, "
+            f"r_e {num(reward.evader_alive)}, flee {num(reward.evader_flee)} per m",
+            f"f_p's {paper('pursuit_scale')}; the other constants {NOT_STATED}",
+        ),
+        ("Budget", f"{env_steps:,} env steps", same, paper("budget")),
+        (
+            "Episode",
+            f"{config.env.max_steps} steps of {num(config.env.control_dt)} s",
+            same,
+            paper("episode"),
+        ),
+    ]
+    keys = ("setting", "pursuers", "evaders", "paper")
+    return [dict(zip(keys, row, strict=True)) for row in rows]
+
+
+def markdown(title: str, text: str, header: tuple[str, ...], rows: list[tuple]) -> str:
+    lines = [f"# {title}", "", text, "", "| " + " | ".join(header) + " |"]
+    lines.append("|" + "---|" * len(header))
+    lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def runs_cell(runs: list[str]) -> str:
+    """`mix-20-5-8-s0`, `mean-20-5-8-s0` ... as "20-5-8 (mix, mean)", the others by name."""
+    scales: dict[str, list[str]] = {}
+    others = []
+    for run in runs:
+        match = re.fullmatch(r"([a-z]+)-(\d+-\d+-\d+)-s0", run)
+        if match:
+            scales.setdefault(match[2], []).append(match[1])
+        else:
+            others.append(f"`{run}`")
+    cells = [f"{scale} ({', '.join(sorted(e))})" for scale, e in sorted(scales.items())]
+    return "; ".join(cells + others)
+
+
+def compute_markdown(data: dict) -> str:
+    labels = {name: f"Table {name}" if name.isupper() else name for name in data["tables"]}
+    rows = []
+    for label, t in [
+        *((labels[name], t) for name, t in data["tables"].items()),
+        ("The page, each run once", data["page"]),
+        ("In no table", data["in_no_table"]),
+    ]:
+        trained = runs_cell(t["runs"]) if t is not data["page"] else f"{len(t['runs'])} runs"
+        if t.get("not_logged"):
+            trained += f"; not logged: {', '.join(f'`{n}`' for n in t['not_logged'])}"
+        hours = (f"{t[key]:.2f}" for key in ("training_h", "evaluation_h", "total_h"))
+        rows.append((label, trained, *hours))
+    text = (
+        f"Wall hours on a {data['machine']['cpu_cores']}-core CPU, no GPU, mostly shared with "
+        "other jobs. Training: the intervals between the rows of each run's "
+        f"`train/runs/<run>/curves.csv.gz`; one over {data['pause_s'] // 60} minutes is a pause "
+        "between resumed chunks and counts as the run's median interval. A table's runs are "
+        "those whose policies its evaluations played (shared runs count in each table). "
+        "Evaluation: `meta.seconds` of its reports, plus the recorded play time of each "
+        "pairing a report kept from an earlier one."
+    )
+    header = ("Table", "Trained by (`train/runs/`)", "Training h", "Evaluation h", "Total h")
+    return markdown("Compute per table", text, header, rows)
+
+
+def build() -> dict:
+    """Everything recipe.json holds."""
+    config, runs = default_config("20-5-8"), co_evolutions()
+    cost = compute()
+    env_steps = {cost["runs"][name]["env_steps"] for name in runs}
+    assert len(env_steps) == 1, env_steps
+    measured = measurements()
+    return {
+        "written_by": "python -m experiments.results.recipe",
+        "paper": {key: {"value": value, "says": says} for key, (value, says) in PAPER.items()},
+        "defaults": {
+            "preset": config.preset,
+            "backend": config.backend,
+            "learning_rate": {t: team_learning_rate(config, t) for t in ("pursuer", "evader")},
+            "reward_scale": {t: config.team(t).reward_scale for t in ("pursuer", "evader")},
+            "network": config.pursuer.network.to_dict(),
+            "ppo": dataclasses.asdict(config.ppo),
+            "reward": dataclasses.asdict(config.env.reward),
+            "control_dt": config.env.control_dt,
+            "max_steps": config.env.max_steps,
+        },
+        "co_evolutions": {
+            "runs": sorted(runs),
+            "differences_from_default": recipe_differences(runs),
+        },
+        "measured": measured,
+        "deviations": deviations(config, runs, measured, *env_steps),
+        "hyperparameters": hyperparameters(config, *env_steps),
+        "compute": cost,
+    }
+
+
+def write(data: dict, out: Path) -> list[Path]:
+    """recipe.json and the three tables under `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    differences = ", ".join(f"`{f}`" for f in data["co_evolutions"]["differences_from_default"])
+    files = {
+        "recipe.json": json.dumps(data, indent=1, ensure_ascii=False) + "\n",
+        "deviations.md": markdown(
+            "Deviations from the paper",
+            "Ours: the defaults of `pe_mjx/experiment.py` (`default_config`), as every "
+            "co-evolution of Tables II-VI ran them. The paper's: its value, in its own words "
+            "where it says anything. Measured effect: a committed data file's, else not yet "
+            "ablated. Written by `python -m experiments.results.recipe`.",
+            ("What", "Ours", "The paper", "Why", "Measured effect"),
+            [tuple(row.values()) for row in data["deviations"]],
+        ),
+        "hyperparameters.md": markdown(
+            "Hyperparameters beside the paper's",
+            "Every co-evolution of Tables II-VI (`train/runs/*-s0`); each differs from "
+            f"`default_config` of its scene only in {differences}. Written by "
+            "`python -m experiments.results.recipe`.",
+            ("Setting", "Pursuers", "Evaders", "The paper"),
+            [tuple(row.values()) for row in data["hyperparameters"]],
+        ),
+        "compute.md": compute_markdown(data["compute"]),
+    }
+    for name, text in files.items():
+        (out / name).write_text(text, encoding="utf-8")
+    return [out / name for name in files]
+
+
+def main(args: Args) -> None:
+    for path in write(build(), args.out):
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
