@@ -8,6 +8,8 @@
         network: NetworkConfig  that team's actor-critic
         reward_scale            rewards are multiplied by this before GAE
       ppo: PPOConfig            the optimiser and rollout settings
+      pool: PoolConfig          one learned team against a pool of opponents (off by
+                                default: the paper's plain co-evolution)
       backend, env_steps, seed, eval_*, checkpoint_every   the run
 
 `pe-mjx train` exposes every field as a nested flag (`--env.reward.capture 50`,
@@ -28,12 +30,14 @@ from pathlib import Path
 from typing import Any, Literal
 
 from pe_mjx.config import PRESETS, EnvConfig, check_finite, from_dict, get_preset, merge, to_dict
-from pe_mjx.names import BACKENDS, ENCODERS, TEAMS, other_team
+from pe_mjx.names import BACKENDS, BUILTIN_POLICIES, ENCODERS, TEAMS, other_team
 
 Encoder = Literal["mix", "mean", "birnn", "mlp"]
 Backend = Literal["mjx", "kinematic"]
+Team = Literal["pursuer", "evader"]
 assert Encoder.__args__ == ENCODERS  # type: ignore[attr-defined]
 assert Backend.__args__ == BACKENDS  # type: ignore[attr-defined]
+assert Team.__args__ == TEAMS  # type: ignore[attr-defined]
 
 # Fields `--resume` may change: the budget and how often the run logs, evaluates and saves.
 RESUMABLE = ("env_steps", "eval_every", "eval_envs", "checkpoint_every")
@@ -224,6 +228,57 @@ class TeamTraining:
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
+class PoolConfig:
+    """One learned team trains against a pool of opponents (`pe_mjx.ppo.pool`): the co-evolving
+    opponent's current policy, its own past snapshots and fixed builtin policies, each arena's
+    member drawn at every reset with these probabilities."""
+
+    team: Team | None = None
+    """The learned team that faces the pool (its opponent must learn too); None: no pool."""
+    snapshot_every: int = 10
+    """Snapshot the opponent's parameters every this many iterations (the first at iteration 0)."""
+    keep: int = 4
+    """Keep the last this many snapshots."""
+    fixed: tuple[str, ...] = ()
+    """Fixed members, builtin policies only (scripted, random)."""
+    p_current: float = 1.0
+    """Probability that an arena's opponent is the co-evolving opponent."""
+    p_snapshots: float = 0.0
+    """Probability of a snapshot (uniform over those kept so far)."""
+    p_fixed: float = 0.0
+    """Probability of a fixed member (uniform over `fixed`)."""
+
+    def __post_init__(self) -> None:
+        check_finite(self, "pool.")
+        object.__setattr__(self, "fixed", tuple(self.fixed))
+        for name in ("snapshot_every", "keep"):
+            value = getattr(self, name)
+            _check(value >= 1, f"pool.{name}", f"must be >= 1, got {value}")
+        probs = (self.p_current, self.p_snapshots, self.p_fixed)
+        _check(
+            min(probs) >= 0 and abs(sum(probs) - 1.0) <= 1e-6,
+            "pool.p_current / p_snapshots / p_fixed",
+            f"must be >= 0 and sum to 1, got {probs}",
+        )
+        _check(
+            all(name in BUILTIN_POLICIES for name in self.fixed)
+            and len(set(self.fixed)) == len(self.fixed),
+            "pool.fixed",
+            f"must name distinct builtin policies {BUILTIN_POLICIES}, got {self.fixed}",
+        )
+        _check(
+            bool(self.fixed) == (self.p_fixed > 0),
+            "pool.p_fixed",
+            f"must be > 0 when pool.fixed names policies and 0 when it is empty, got "
+            f"{self.p_fixed} with fixed={self.fixed}",
+        )
+
+    @property
+    def on(self) -> bool:
+        return self.team is not None
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class ExperimentConfig:
     """A whole co-evolution run (or one team against a fixed opponent); see the module doc."""
 
@@ -239,6 +294,8 @@ class ExperimentConfig:
     """The evaders (a larger step size: at 3e-4 their PPO updates stayed at ~1e-4 KL and they
     did not learn; docs/results.md)."""
     ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
+    pool: PoolConfig = dataclasses.field(default_factory=PoolConfig)
+    """An opponent pool for one learned team (off by default)."""
     backend: Backend = "mjx"
     """Env backend: mjx (MuJoCo MJX physics) or kinematic (exact unicycle arcs, faster)."""
     env_steps: int = 10_000_000
@@ -260,6 +317,11 @@ class ExperimentConfig:
             self.pursuer.learns or self.evader.learns,
             "pursuer.policy / evader.policy",
             "are both fixed; nothing to learn",
+        )
+        _check(
+            not self.pool.on or (self.pursuer.learns and self.evader.learns),
+            "pool.team",
+            "needs both teams learning (the pool holds the co-evolving opponent's snapshots)",
         )
         _check(self.env_steps >= 1, "env_steps", f"must be >= 1, got {self.env_steps}")
         _check(0 <= self.seed < 2**32, "seed", f"must be in [0, 2**32), got {self.seed}")

@@ -269,6 +269,11 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
         "--env.reward.capture": ("nan", "inf"),
         "--env.arena.radius": ("inf", "-1"),
         "--env.max-steps": ("0",),
+        "--pool.team": ("referee",),
+        "--pool.keep": ("0",),
+        "--pool.snapshot-every": ("0", "-2"),
+        "--pool.p-current": ("nan", "-1"),
+        "--pool.fixed": ("mix-20-5-8",),
     }
     for flag, values in bad_values.items():
         for value in values:
@@ -284,6 +289,10 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
         "--evader.init", str(runs / "good"))  # fmt: skip
     add("train-init-misfit", "train", *TINY_TRAIN, *out, "--pursuer.network.width", "8",
         "--pursuer.init", str(runs / "good"))  # fmt: skip
+    add("train-pool-probabilities", "train", *TINY_TRAIN, *out, "--pool.team", "pursuer",
+        "--pool.p-current", "0.5")  # fmt: skip
+    add("train-pool-fixed-opponent", "train", *TINY_TRAIN, *out, "--pool.team", "pursuer",
+        "--evader.policy", "scripted")  # fmt: skip
     add("train-unknown-flag", "train", *TINY_TRAIN, *out, "--learning-rate", "1e-3")
     add("train-missing-value", "train", *TINY_TRAIN, *out, "--ppo.gamma")
     add("train-view-value", "train", *TINY_TRAIN, *out, "--view=maybe")

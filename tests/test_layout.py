@@ -62,6 +62,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "trainer": (
         "ppo",
         "ppo.losses",
+        "ppo.pool",
         "ppo.distributed",
         "ppo.train",
         "ppo.checkpoint",

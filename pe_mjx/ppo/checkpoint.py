@@ -239,10 +239,12 @@ def _restore_across_versions(
     counters are restored; the arenas in flight are drawn afresh. Resuming is then exact for
     the learners but not bit-for-bit for the rollouts, and a warning says so.
 
-    The saved leaves are positional (`_flat`): the teams come first and the RNG and counters
-    last, so both ends are matched by count and every shape is checked.
+    The saved leaves are positional (`_flat`): the teams (then an opponent pool's state, if
+    any) come first and the RNG and counters last, so both ends are matched by count and every
+    shape is checked.
     """
-    n_teams = len(jax.tree.leaves(abstract.teams))
+    learners = (abstract.teams, abstract.pool)
+    n_teams = len(jax.tree.leaves(learners))
     tail = [abstract.rng, abstract.iteration, abstract.env_steps]
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
@@ -252,7 +254,7 @@ def _restore_across_versions(
             )
         saved = saved.train
         keys = sorted(saved)
-        want_teams = jax.tree.leaves(abstract.teams)
+        want_teams = jax.tree.leaves(learners)
         sized = [leaf for leaf in want_teams if math.prod(leaf.shape)]
         team_keys, tail_keys = keys[: len(sized)], keys[-len(tail) :]
         for key, leaf in zip(team_keys, sized, strict=True):
@@ -267,9 +269,9 @@ def _restore_across_versions(
             f"its learners alone: {short_error(err, 120)})"
         ) from None
     values = iter(np.asarray(saved[k]) for k in team_keys)
-    teams = jax.tree.map(
+    teams, pool = jax.tree.map(
         lambda leaf: next(values) if math.prod(leaf.shape) else np.zeros(leaf.shape, leaf.dtype),
-        abstract.teams,
+        learners,
     )
     rng, iteration, env_steps = (np.asarray(saved[k]) for k in tail_keys)
     fresh = jax.device_get(keys_to_data(trainer.init(int(iteration) + trainer.config.seed)))
@@ -279,7 +281,7 @@ def _restore_across_versions(
         f"learners, counters and RNG with freshly drawn arenas",
         file=sys.stderr,
     )
-    return fresh.replace(teams=teams, rng=rng, iteration=iteration, env_steps=env_steps)
+    return fresh.replace(teams=teams, pool=pool, rng=rng, iteration=iteration, env_steps=env_steps)
 
 
 def _restore_step(run_dir: Path, step: int, trainer: Trainer, abstract: Any) -> Any:
@@ -328,6 +330,19 @@ def _fall_back(run_dir: Path, err: Exception, read: Any, fallback: bool) -> tupl
     return found
 
 
+def _require_same_pool(run_dir: Path, step: int, trainer: Trainer) -> None:
+    """A `CheckpointError` (one line) when checkpoint `step` was trained with an opponent pool
+    and `trainer` has none, or the other way round (runs saved before pools had none)."""
+    experiment = read_meta(run_dir, step).get("experiment") or {}
+    saved = (experiment.get("pool") or {}).get("team")
+    if (saved is None) != (trainer.pool is None):
+        had = f"with an opponent pool (pool.team {saved})" if saved else "without a pool"
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} was trained {had}, this trainer "
+            f"{'has one' if saved is None else 'has none'}: resume it with its saved config"
+        )
+
+
 def restore_train_state(
     run_dir: str | Path, trainer: Trainer, fallback: bool = False
 ) -> TrainState:
@@ -340,6 +355,7 @@ def restore_train_state(
     run_dir = Path(run_dir)
     step = latest_step(run_dir)
     _require_train_item(run_dir, step)
+    _require_same_pool(run_dir, step, trainer)
     template = trainer.abstract_state()
     abstract = jax.eval_shape(keys_to_data, template)
 

@@ -106,7 +106,8 @@ def initial_variables(trainer: Trainer) -> dict[str, Any]:
 
 def warm_start(trainer: Trainer, state: TrainState, variables: dict[str, Any]) -> TrainState:
     """`state` with each team of `variables` starting from those parameters and observation
-    statistics, and a fresh optimiser state (the step-size schedule starts over too)."""
+    statistics, and a fresh optimiser state (the step-size schedule starts over too); a pool's
+    snapshots of a warm-started opponent start from its stored policy."""
     teams = dict(state.teams)
     for team, stored in variables.items():
         stored = jax.device_put(stored, trainer.replicated)
@@ -116,7 +117,12 @@ def warm_start(trainer: Trainer, state: TrainState, variables: dict[str, Any]) -
         teams[team] = teams[team].replace(
             params=stored["params"], opt_state=opt_state, normalizer=stored["normalizer"]
         )
-    return state.replace(teams=teams)
+    pool = state.pool
+    if pool is not None and trainer.pool_opponent in variables:  # its first snapshot too
+        stored = teams[trainer.pool_opponent]
+        pool = trainer.pool.refill(pool, stored.params, stored.normalizer)
+        pool = jax.device_put(pool, trainer.state_shardings(state).pool)
+    return state.replace(teams=teams, pool=pool)
 
 
 @dataclasses.dataclass(frozen=True)

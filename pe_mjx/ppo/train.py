@@ -14,6 +14,9 @@ training iteration, jitted whole, reads top to bottom:
   4. `update_epochs` passes of clipped PPO over shuffled minibatches, per learned team
      (Brax `gradient_update_fn`, optax Adam with global-norm clipping and a linear schedule).
 
+With `ExperimentConfig.pool` one learned team plays each arena against a member of an opponent
+pool instead (`pe_mjx.ppo.pool`); off by default, when nothing of it is built or traced.
+
 Data parallelism: the env batch axis is sharded over every device of a `jax.sharding.Mesh`
 (all local devices, or all processes' devices after `jax.distributed.initialize`); parameters
 are replicated and XLA inserts the gradient all-reduce, so the same code runs on 1 or N devices.
@@ -50,6 +53,7 @@ from pe_mjx.policy.inference import (
 )
 from pe_mjx.policy.scripted import make_policy
 from pe_mjx.ppo.losses import TeamBatch, ppo_loss, team_targets
+from pe_mjx.ppo.pool import POOL_STREAM, PoolState, make_pool, opponent_mask
 
 
 @struct.dataclass
@@ -84,6 +88,7 @@ def _critic_first(loss_fn: Callable[..., Any], live: jax.Array) -> Callable[...,
 @struct.dataclass
 class TrainState:
     teams: dict[str, TeamState]
+    pool: PoolState | None  # None (no leaves) without a pool: the state is as it always was
     env_state: State  # batched [num_envs]
     rng: jax.Array
     iteration: jax.Array  # int32 []
@@ -126,6 +131,13 @@ class Trainer:
                 )
             self.fixed[team] = make_policy(spec, self.env_config, team)
         self.scripted = {t: make_policy("scripted", self.env_config, t) for t in TEAMS}
+        pool_team = config.pool.team
+        self.pool_opponent = None if pool_team is None else other_team(pool_team)
+        self.pool = make_pool(
+            config.pool,
+            self.networks.get(self.pool_opponent),
+            lambda name: make_policy(name, self.env_config, self.pool_opponent),
+        )
         self.mesh = mesh or jax.sharding.Mesh(np.array(jax.devices()), ("data",))
         n_dev = self.mesh.devices.size
         if config.ppo.num_envs % n_dev:
@@ -181,6 +193,11 @@ class Trainer:
                 lambda x: self.batch_sharding if np.size(x) else self.replicated, state.env_state
             ),
             teams=jax.tree.map(lambda _: self.replicated, state.teams),
+            pool=None
+            if state.pool is None
+            else jax.tree.map(lambda _: self.replicated, state.pool).replace(
+                member=self.batch_sharding
+            ),
             rng=self.replicated,
             iteration=self.replicated,
             env_steps=self.replicated,
@@ -191,6 +208,7 @@ class Trainer:
         return jax.eval_shape(self._init, jax.random.key(0))
 
     def _init(self, rng: jax.Array) -> TrainState:
+        pool_rng = jax.random.fold_in(rng, POOL_STREAM)  # its own stream: the others as before
         rng, env_rng, *net_rngs = jax.random.split(rng, 2 + len(TEAMS))
         env_keys = jax.random.split(env_rng, self.config.ppo.num_envs)
         env_state = self._shard_batch(jax.vmap(self.env.reset)(env_keys))
@@ -205,8 +223,15 @@ class Trainer:
                 opt_state=self.optimizers[team].init(params),
                 normalizer=init_normalizer(obs),
             )
+        pool = None
+        if self.pool is not None:
+            opponent = teams[self.pool_opponent]
+            pool = self.pool.init(
+                pool_rng, opponent.params, opponent.normalizer, self.config.ppo.num_envs
+            )
         state = TrainState(
             teams=teams,
+            pool=pool,
             env_state=env_state,
             rng=rng,
             iteration=jnp.zeros((), jnp.int32),
@@ -217,10 +242,16 @@ class Trainer:
     # ------------------------------------------------------------------ rollout
 
     def _act(
-        self, teams: dict[str, TeamState], obs: dict[str, dict[str, jax.Array]], rng: jax.Array
+        self,
+        teams: dict[str, TeamState],
+        obs: dict[str, dict[str, jax.Array]],
+        rng: jax.Array,
+        pool: PoolState | None = None,
+        raw_obs: dict[str, dict[str, jax.Array]] | None = None,
     ) -> tuple[dict[str, jax.Array], dict[str, dict[str, jax.Array]]]:
         """Actions for both teams on batched obs [B, A, ...] (a learned team's already in its
-        network's length unit: `_inputs`); extras for learned teams."""
+        network's length unit: `_inputs`; `raw_obs` as the env gives them); extras for learned
+        teams. With a `pool`, the pool team's opponent plays each arena's member."""
         actions, extras = {}, {}
         keys = dict(zip(TEAMS, jax.random.split(rng, len(TEAMS)), strict=True))
         for team in TEAMS:
@@ -230,7 +261,10 @@ class Trainer:
                 logits, value = self.networks[team].apply(
                     ts.params, normalize_obs(team_obs, ts.normalizer)
                 )
-                action = sample_actions(logits, keys[team])
+                if pool is not None and team == self.pool_opponent:
+                    action = self.pool.act(pool, team_obs, raw_obs[team], logits, keys[team])
+                else:
+                    action = sample_actions(logits, keys[team])
                 extras[team] = {"log_prob": log_prob(logits, action), "value": value}
             else:
                 batch = team_obs["own"].shape[0]
@@ -244,18 +278,23 @@ class Trainer:
         scale = length_scale(self.network_configs[team], self.env_config)
         return obs if scale is None else in_length_unit(obs, scale)
 
-    def _rollout(self, ts: TrainState, rng: jax.Array) -> tuple[State, dict[str, Any]]:
-        def step(env_state: State, key: jax.Array):
+    def _rollout(
+        self, ts: TrainState, rng: jax.Array
+    ) -> tuple[tuple[State, PoolState | None], dict[str, Any]]:
+        def step(carry: tuple[State, PoolState | None], key: jax.Array):
+            env_state, pool = carry
             obs = dict(env_state.obs)
             for team in self.learned:  # once per step: acting and the stored data share it
                 obs[team] = self._inputs(team, obs[team])
-            actions, extras = self._act(ts.teams, obs, key)
+            actions, extras = self._act(ts.teams, obs, key, pool, env_state.obs)
             next_state = self.env.step_batch(env_state, actions)
             next_state = self._shard_batch(next_state)
             data = {}
             for team in self.learned:
                 scale = self.config.team(team).reward_scale
                 valid = next_state.info["valid"][team]
+                if pool is not None and team == self.pool_opponent:
+                    valid = opponent_mask(valid, pool.member)  # its own policy's data only
                 active_after = next_state.info["active"][team]
                 data[team] = {
                     "obs": obs[team],
@@ -272,10 +311,13 @@ class Trainer:
             data["metrics"] = next_state.metrics
             data["team_reward"] = {t: jnp.sum(next_state.reward[t], axis=-1) for t in TEAMS}
             data["done"] = next_state.done
-            return next_state, data
+            if pool is not None:
+                data["pool_member"] = pool.member  # the members that played this step
+                pool = self.pool.redraw(pool, next_state.done > 0)
+            return (next_state, pool), data
 
         keys = jax.random.split(rng, self.config.ppo.unroll_length)
-        return jax.lax.scan(step, ts.env_state, keys)
+        return jax.lax.scan(step, (ts.env_state, ts.pool), keys)
 
     # ------------------------------------------------------------------ update
 
@@ -336,7 +378,7 @@ class Trainer:
     def iteration(self, ts: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         """One training iteration (rollout, normalisation, GAE, PPO); jit it."""
         rng, rollout_rng, update_rng = jax.random.split(ts.rng, 3)
-        env_state, data = self._rollout(ts, rollout_rng)
+        (env_state, pool), data = self._rollout(ts, rollout_rng)
         metrics: dict[str, jax.Array] = {}
         teams = dict(ts.teams)
         update_keys = dict(zip(TEAMS, jax.random.split(update_rng, len(TEAMS)), strict=True))
@@ -369,9 +411,14 @@ class Trainer:
         for team, reward in data["team_reward"].items():
             # The team's reward (summed over its agents, unscaled) per step and arena.
             metrics[f"reward/{team}/total"] = jnp.mean(reward)
+        if pool is not None:
+            metrics.update(self.pool.metrics(data))
+            opponent = teams[self.pool_opponent]
+            pool = self.pool.snapshot(pool, opponent.params, opponent.normalizer, ts.iteration + 1)
         steps = self.config.steps_per_iteration
         new_ts = TrainState(
             teams=teams,
+            pool=pool,
             env_state=env_state,
             rng=rng,
             iteration=ts.iteration + 1,
@@ -401,17 +448,32 @@ class Trainer:
 
         Keys `eval/<team>_vs_scripted/<metric>`: the env's `episode/*` metrics averaged over the
         episodes, and `<team>_return`, the team's episodic return (unscaled rewards summed over
-        the episode, averaged over its agents and the episodes)."""
+        the episode, averaged over its agents and the episodes).
+
+        With a pool, also the pool team against its newest snapshot (`<team>_vs_snapshot`) and
+        against each fixed member other than scripted (`<team>_vs_random`), after the above
+        (which therefore draw the keys they drew without a pool)."""
         metrics = {}
         current = self.policies(ts)
-        for team in self.learned:
+        pairs = [(team, "scripted", self.scripted[other_team(team)]) for team in self.learned]
+        if self.pool is not None:
+            opponent = self.pool_opponent
+            snapshot = learned_policy(
+                opponent,
+                self.networks[opponent],
+                self.network_configs[opponent],
+                self.pool.latest(ts.pool),
+                env_config=self.env_config,
+            )
+            pairs += self.pool.eval_opponents(snapshot)
+        for team, name, opponent_policy in pairs:
             other = other_team(team)
-            pair = {team: current[team], other: self.scripted[other]}
+            pair = {team: current[team], other: opponent_policy}
             rng, key = jax.random.split(rng)
             keys = self._shard_batch(jax.random.split(key, self.config.eval_envs))
             final, returns = play_episodes(self.eval_env, pair, keys, returns=True)
             for k, v in final.metrics.items():
                 if k.startswith("episode/"):
-                    metrics[f"eval/{team}_vs_scripted/{k[len('episode/') :]}"] = jnp.mean(v)
-            metrics[f"eval/{team}_vs_scripted/{team}_return"] = jnp.mean(returns[team])
+                    metrics[f"eval/{team}_vs_{name}/{k[len('episode/') :]}"] = jnp.mean(v)
+            metrics[f"eval/{team}_vs_{name}/{team}_return"] = jnp.mean(returns[team])
         return metrics
