@@ -38,6 +38,7 @@ NOT_DATA = {"3.1"}
 SOURCES = (
     "paper-3m/**/*.json",
     "paper-3m-scales/**/*.json",
+    "paper-10m/**/*.json",
     "coev-seeds-3m/*/seeds.json",
     "large-scale/summary.json",
     "transfer-240-60-120-3m/results.json",
