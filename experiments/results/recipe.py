@@ -79,6 +79,7 @@ PAPER = {
 TABLES = {
     "II": ("paper-3m-scales/table-II",),
     "III": ("paper-3m/table-III",),
+    "III at 10M": ("paper-10m/table-III",),
     "IV": ("paper-3m-scales/table-IV",),
     "V": ("paper-3m-scales/table-V",),
     "VI": ("paper-3m-scales/table-VI",),
@@ -163,6 +164,8 @@ def run_of(spec: str) -> str | None:
     name = Path(spec).name
     if (RUNS / name / "curves.csv.gz").is_file():
         return name
+    if Path(spec).parent.name == "10m" and (RUNS / f"{name}-10m" / "curves.csv.gz").is_file():
+        return f"{name}-10m"  # trained under runs/10m/<run>, kept as train/runs/<run>-10m
     match = SHIPPED.fullmatch(name)
     if match is None:
         return None
@@ -508,7 +511,9 @@ def runs_cell(runs: list[str]) -> str:
 
 
 def compute_markdown(data: dict) -> str:
-    labels = {name: f"Table {name}" if name.isupper() else name for name in data["tables"]}
+    labels = {
+        name: f"Table {name}" if name.split()[0].isupper() else name for name in data["tables"]
+    }
     rows = []
     for label, t in [
         *((labels[name], t) for name, t in data["tables"].items()),
