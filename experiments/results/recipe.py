@@ -24,9 +24,7 @@ other jobs, so more than a run alone would take.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import gzip
 import itertools
 import json
 import re
@@ -37,6 +35,7 @@ import tyro
 
 from pe_mjx.experiment import ExperimentConfig, default_config
 from pe_mjx.paper import PAPER as PAPER_TABLES
+from pe_mjx.ppo.curves import CURVES_FILE, read_rows
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "docs" / "data"
@@ -139,8 +138,7 @@ def recipe_differences(runs: dict[str, ExperimentConfig]) -> list[str]:
 
 def training_time(run: str) -> dict:
     """Hours of training a run's curves record (the module doc gives the rule)."""
-    with gzip.open(RUNS / run / "curves.csv.gz", "rt", newline="") as f:
-        rows = [(int(r["env_steps"]), float(r["wall_time"])) for r in csv.DictReader(f)]
+    rows = [(int(r["env_steps"]), r["wall_time"]) for r in read_rows(RUNS / run / CURVES_FILE)]
     times = [t for _, t in rows]
     intervals = [b - a for a, b in itertools.pairwise(times)]
     median = statistics.median(intervals)
@@ -162,9 +160,9 @@ def run_of(spec: str) -> str | None:
     """The directory under train/runs whose curves trained the policy `spec` (a run, a shipped
     name or a path), or None where no committed run logged it (train/seeds keeps policies only)."""
     name = Path(spec).name
-    if (RUNS / name / "curves.csv.gz").is_file():
+    if (RUNS / name / CURVES_FILE).is_file():
         return name
-    if Path(spec).parent.name == "10m" and (RUNS / f"{name}-10m" / "curves.csv.gz").is_file():
+    if Path(spec).parent.name == "10m" and (RUNS / f"{name}-10m" / CURVES_FILE).is_file():
         return f"{name}-10m"  # trained under runs/10m/<run>, kept as train/runs/<run>-10m
     match = SHIPPED.fullmatch(name)
     if match is None:
@@ -203,7 +201,7 @@ def compute() -> dict:
             "not_logged": sorted(Path(s).name for s, r in trained_by.items() if r is None),
         }
     used = sorted({r for t in tables.values() for r in t["runs"]})
-    logged = sorted(path.parent.name for path in RUNS.glob("*/curves.csv.gz"))
+    logged = sorted(path.parent.name for path in RUNS.glob(f"*/{CURVES_FILE}"))
     runs = {run: training_time(run) for run in logged}
     page = {"runs": used, "evaluation_h": sum(t["evaluation_h"] for t in tables.values())}
     other = {"runs": sorted(set(runs) - set(used)), "evaluation_h": 0.0}

@@ -79,23 +79,22 @@ class Pool:
         """The pool at iteration 0: every slot holds the opponent's initial policy (counted as one
         snapshot), each arena's member drawn."""
         rng, key = jax.random.split(rng)
-        count = jnp.ones((), jnp.int32)
-        return PoolState(
-            params=jax.tree.map(_stack(self.keep), params),
-            normalizer=jax.tree.map(_stack(self.keep), normalizer),
-            count=count,
-            member=self.draw(key, count, num_envs),
-            rng=rng,
-        )
+        filled = self._filled_with(params, normalizer)
+        return PoolState(**filled, member=self.draw(key, filled["count"], num_envs), rng=rng)
 
     def refill(self, state: PoolState, params: Any, normalizer: Any) -> PoolState:
         """`state` with the opponent's initial policy replaced by `params` and `normalizer`
         (a warm start, `TeamTraining.init`), counted as the one snapshot taken."""
-        return state.replace(
-            params=jax.tree.map(_stack(self.keep), params),
-            normalizer=jax.tree.map(_stack(self.keep), normalizer),
-            count=jnp.ones((), jnp.int32),
-        )
+        return state.replace(**self._filled_with(params, normalizer))
+
+    def _filled_with(self, params: Any, normalizer: Any) -> dict[str, Any]:
+        """Every slot holding `params` and `normalizer`, counted as one snapshot."""
+        stack = _stack(self.keep)
+        return {
+            "params": jax.tree.map(stack, params),
+            "normalizer": jax.tree.map(stack, normalizer),
+            "count": jnp.ones((), jnp.int32),
+        }
 
     def draw(self, rng: jax.Array, count: jax.Array, n: int) -> jax.Array:
         """int32 [n] members: current with `p_current`, a kept snapshot (uniform over the
