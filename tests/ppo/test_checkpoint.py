@@ -416,12 +416,15 @@ def test_a_policy_that_does_not_fit_the_network_is_refused_before_the_run_starts
     assert not (tmp_path / "misfit").exists()
 
 
-def _truncate_largest(item: Path) -> None:
-    """Cuts the largest array data file of an orbax item in half (a disk that filled up, a bad
-    copy). (Not any file: orbax does not read `_sharding` back, for one.)"""
-    data = item / "ocdbt.process_0" / "d"
-    largest = max((f for f in data.iterdir() if f.is_file()), key=lambda f: f.stat().st_size)
-    largest.write_bytes(largest.read_bytes()[: largest.stat().st_size // 2])
+def _truncate_data(item: Path) -> None:
+    """Cuts every data file of an orbax item in half (a bad copy, a disk that filled up).
+
+    Every file, not the largest: `ocdbt.process_0/d` also holds the per-process B-tree nodes,
+    which a restore never reads once they are merged into the item's own manifest, and under
+    load one of them can be the largest file there (CI, 2026-12-05). (Not any file of the item
+    either: orbax does not read `_sharding` back, for one.)"""
+    for data in (item / "ocdbt.process_0" / "d").iterdir():
+        data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
 
 
 def test_a_damaged_latest_checkpoint_names_the_intact_one_and_can_fall_back(runs, tmp_path, capsys):
@@ -432,7 +435,7 @@ def test_a_damaged_latest_checkpoint_names_the_intact_one_and_can_fall_back(runs
     root, _, _ = runs
     run = tmp_path / "damaged"
     shutil.copytree(root / "straight", run)
-    _truncate_largest(run / "checkpoints" / "4" / "train")
+    _truncate_data(run / "checkpoints" / "4" / "train")
     trainer = Trainer(CONFIG)
     with pytest.raises(store.DamagedCheckpointError) as caught:
         checkpoint.restore_train_state(run, trainer)
@@ -456,7 +459,7 @@ def test_a_damaged_latest_checkpoint_names_the_intact_one_and_can_fall_back(runs
     both = tmp_path / "both-damaged"
     shutil.copytree(root / "straight", both)
     for step in ("2", "4"):
-        _truncate_largest(both / "checkpoints" / step / "train")
+        _truncate_data(both / "checkpoints" / step / "train")
     with pytest.raises(store.DamagedCheckpointError, match=r"no earlier checkpoint of .* either"):
         checkpoint.restore_train_state(both, trainer, fallback=True)
     assert sorted(p.name for p in (both / "checkpoints").iterdir()) == ["2", "4"]
@@ -466,7 +469,7 @@ def test_a_damaged_latest_policy_or_metadata_names_the_intact_one(runs, tmp_path
     root, _, _ = runs
     run = tmp_path / "policy-damaged"
     shutil.copytree(root / "straight", run)
-    _truncate_largest(run / "checkpoints" / "4" / "policy_pursuer")
+    _truncate_data(run / "checkpoints" / "4" / "policy_pursuer")
     with pytest.raises(store.DamagedCheckpointError, match="checkpoint 2 is the latest intact"):
         load_policy(run, team="pursuer")
     capsys.readouterr()
@@ -488,7 +491,7 @@ def test_a_damaged_latest_policy_or_metadata_names_the_intact_one(runs, tmp_path
     assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["2"]
     assert (run / "damaged-checkpoints" / "4" / "meta").is_dir()
     # The only checkpoint left damaged too: its own error, and nothing moves.
-    _truncate_largest(run / "checkpoints" / "2" / "train")
+    _truncate_data(run / "checkpoints" / "2" / "train")
     with pytest.raises(store.DamagedCheckpointError, match=f"^checkpoint 2 in {run} cannot be"):
         checkpoint.resume_intact(run)
     assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["2"]
@@ -498,7 +501,7 @@ def test_cli_resume_of_a_damaged_run_is_one_line_then_resumes_from_the_intact_on
     root, _, _ = runs
     run = tmp_path / "cli-damaged"
     shutil.copytree(root / "straight", run)
-    _truncate_largest(run / "checkpoints" / "4" / "train")
+    _truncate_data(run / "checkpoints" / "4" / "train")
     before = sorted(str(p) for p in run.rglob("*"))
     exe = [sys.executable, "-m", "pe_mjx.cli", "train", "--resume", str(run), "--no-progress"]
     refused = subprocess.run(exe, capture_output=True, text=True, timeout=600)
