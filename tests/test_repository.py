@@ -4,6 +4,7 @@ finished run's train state. Reads `git ls-files` of this checkout (tracked and s
 
 from __future__ import annotations
 
+import re
 import subprocess
 from pathlib import Path
 
@@ -54,3 +55,22 @@ def test_no_tensorboard_events_and_no_train_state_of_a_finished_run():
         if run.name != "README.md":
             assert (ROOT / run / "config.json").is_file(), run
             assert (ROOT / run / "curves.csv.gz").is_file(), run
+
+
+_LINK = re.compile(r"\]\(([^)\s#]+)(?:#[^)]*)?\)")
+_SCRIPT = re.compile(r"(?<![\w/.-])((?:tools|experiments|train|tests)/[\w/-]+\.py)\b")
+
+
+def test_every_link_and_script_the_docs_name_exists():
+    """A relative markdown link, or a script path (`tools/...py`, `experiments/...py`), in any
+    tracked markdown file names a file that is here: scripts move, and the page that told a
+    reader to run one must move with them."""
+    broken = []
+    for path in (p for p in tracked() if p.endswith(".md")):
+        text = (ROOT / path).read_text(encoding="utf-8")
+        for target in _LINK.findall(text):
+            external = "://" in target or target.startswith("mailto:")
+            if not external and not (ROOT / path).parent.joinpath(target).exists():
+                broken.append(f"{path}: link {target}")
+        broken += [f"{path}: {s}" for s in _SCRIPT.findall(text) if not (ROOT / s).exists()]
+    assert broken == []
