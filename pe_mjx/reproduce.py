@@ -88,6 +88,9 @@ class ReproduceArgs:
     replayed and must come out the same trial for trial (distances up to float32 rounding),
     then only the new pairings are played (if it differs, the whole table is). Without it such
     a table is kept as it is."""
+    progress: bool = True
+    """Show the training progress bar and each pairing's (on a terminal, on stderr); off for
+    logs of long unattended runs."""
 
     def __post_init__(self) -> None:
         if not 0 < self.fraction <= 1:
@@ -149,7 +152,9 @@ def _train(args: ReproduceArgs) -> bool:
             continue
         how = "resuming" if resume else "starting"
         print(f"training {out.name} ({budget:,} env steps, {how})", flush=True)
-        _, state = train(config, out, resume=resume, stop_after=args.stop_after)
+        _, state = train(
+            config, out, resume=resume, stop_after=args.stop_after, progress=args.progress
+        )
         finished = finished and int(state.env_steps) >= budget
     return finished
 
@@ -213,6 +218,7 @@ def _evaluate(args: ReproduceArgs) -> dict[str, dict]:
             record=2,
             skip_same_method=not full,
             keep=keep,
+            progress=args.progress,
         )
         done[table] = _read_results(out / "results.json")
     return done

@@ -191,7 +191,7 @@ def test_extend_plays_a_kept_table_again_keeping_what_it_can(tmp_path, monkeypat
     assert f"table III: extending {table / 'results.json'} with {mean}" in capsys.readouterr().out
     [(pursuers, evaders, scene, out, kwargs)] = calls
     assert (pursuers, evaders, scene, out) == ([mix, mean], [mix, mean], "20-5-8", table)
-    assert kwargs["keep"] == table and kwargs["skip_same_method"]
+    assert kwargs["keep"] == table and kwargs["skip_same_method"] and kwargs["progress"]
     assert len(done["III"]["pairings"]) == 4
     # Complete now: kept as it is, nothing played.
     _evaluate(args)
@@ -201,7 +201,8 @@ def test_extend_plays_a_kept_table_again_keeping_what_it_can(tmp_path, monkeypat
 def test_what_train_launch_did_is_reproduce_only_stop_after_and_skip_eval(tmp_path, monkeypatch):
     """--only picks runs by name (not by table), --env-steps sets their budget, --stop-after and
     --train-seed reach `train`, a run with a checkpoint is resumed (and one at its budget left
-    alone), and nothing is evaluated while a run is unfinished or with --skip-eval."""
+    alone), --no-progress reaches it too, and nothing is evaluated while a run is unfinished or with
+    --skip-eval."""
     import pe_mjx.ppo.run
     from pe_mjx.policy import store
     from pe_mjx.reproduce import ReproduceArgs, reproduce
@@ -211,8 +212,8 @@ def test_what_train_launch_did_is_reproduce_only_stop_after_and_skip_eval(tmp_pa
     class State:
         env_steps = 100  # below the budget: unfinished
 
-    def train(config, out, resume=False, stop_after=None):
-        calls.append((out.name, config.env_steps, config.seed, resume, stop_after))
+    def train(config, out, resume=False, stop_after=None, progress=True):
+        calls.append((out.name, config.env_steps, config.seed, resume, stop_after, progress))
         return None, State()
 
     monkeypatch.setattr(pe_mjx.ppo.run, "train", train)
@@ -228,11 +229,15 @@ def test_what_train_launch_did_is_reproduce_only_stop_after_and_skip_eval(tmp_pa
         env_steps=5000,
         stop_after=3,
         train_seed=7,
+        progress=False,
         docs=tmp_path / "report.md",
         out=tmp_path / "results",
     )
     assert reproduce(args) is None  # unfinished: no table, no report
-    assert sorted(calls) == [("mean-20-5-8", 5000, 7, True, 3), ("mix-20-5-8", 5000, 7, False, 3)]
+    assert sorted(calls) == [
+        ("mean-20-5-8", 5000, 7, True, 3, False),
+        ("mix-20-5-8", 5000, 7, False, 3, False),
+    ]
     assert not (tmp_path / "report.md").exists() and not (tmp_path / "results").exists()
 
 
