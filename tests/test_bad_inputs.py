@@ -324,6 +324,22 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
     for timeout in ("0", "-3", "soon", "1.5"):
         add(f"train-join-timeout-{timeout}", "train", *TINY_TRAIN, *out, *group,
             "--join-timeout", timeout)  # fmt: skip
+    # ship --resumable: the copy of a run in progress; nothing is written when refused.
+    resumable = ["--dest", str(w / "adir"), "--resumable"]
+    add("ship-resumable-no-dest", "ship", str(runs / "good"), "copy", "--resumable")
+    add("ship-resumable-nearest-k", "ship", str(runs / "good"), "copy", *resumable,
+        "--nearest-k", "4")  # fmt: skip
+    add("ship-resumable-bad-name", "ship", str(runs / "good"), "../up", *resumable)
+    add("ship-resumable-exists", "ship", str(runs / "good"), "adir", "--dest", str(w),
+        "--resumable")  # fmt: skip
+    add("ship-resumable-itself", "ship", str(runs / "good"), "good", "--dest", str(runs),
+        "--resumable", "--replace")  # fmt: skip
+    add("ship-resumable-over-its-folder", "ship", str(runs / "good"), "runs", "--dest", str(w),
+        "--resumable", "--replace")  # fmt: skip
+    for name in ("good", "meta_truncated", "params_truncated", "only_unfinished_step"):
+        add(f"ship-resumable-{name}", "ship", str(runs / name), "copy", *resumable)
+    add("ship-resumable-missing", "ship", str(w / "missing"), "copy", *resumable)
+    add("ship-resumable-step", "ship", str(runs / "good"), "copy", *resumable, "--step", "7")
     return cases
 
 

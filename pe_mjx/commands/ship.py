@@ -32,9 +32,15 @@ class ShipArgs:
     length_unit: float | None = None
     """Ship reading neighbour distances in units of this many metres, in any arena (the
     parameters are the run's, unchanged)."""
+    resumable: bool = False
+    """Instead of a policy, write DEST/NAME (--dest required) as the copy of a run in progress to
+    commit: its config, curves and the learners of its checkpoint (no arenas, no policies);
+    `pe-mjx train --resume DEST/NAME` continues the run (train/README.md)."""
 
 
 def run_ship(args: ShipArgs) -> None:
+    if args.resumable:
+        return _ship_resumable(args)
     from pe_mjx.policy.ship import ship_policy
 
     path, meta = ship_policy(
@@ -47,3 +53,20 @@ def run_ship(args: ShipArgs) -> None:
         length_unit=args.length_unit,
     )
     print(f"shipped {args.run} step {meta['step']} ({meta['env_steps']:,} env steps) as {path}")
+
+
+def _ship_resumable(args: ShipArgs) -> None:
+    from pe_mjx.policy.ship import check_name
+    from pe_mjx.ppo.checkpoint import write_resumable_copy
+
+    if args.dest is None:
+        raise ValueError("--resumable needs --dest (e.g. --dest train/unfinished)")
+    if args.nearest_k is not None or args.length_unit is not None:
+        raise ValueError("--resumable copies the run as it trains: no --nearest-k, --length-unit")
+    check_name(args.name)
+    target = args.dest / args.name
+    meta = write_resumable_copy(args.run, target, step=args.step, replace=args.replace)
+    print(
+        f"wrote a resumable copy of {args.run} step {meta['step']} ({meta['env_steps']:,} env "
+        f"steps) to {target}: continue it with `pe-mjx train --resume {target}`"
+    )

@@ -51,8 +51,7 @@ def ship_policy(
     changes = {"nearest_k": nearest_k, "length_unit": length_unit}
     changes = {k: v for k, v in changes.items() if v is not None}
     check_changes(changes)  # before anything is copied
-    if not name or "/" in name or name.startswith("."):
-        raise ValueError(f"NAME: bad name {name!r} (a plain name such as mix-20-5-8)")
+    check_name(name)
     meta = store.read_meta(run, step)  # validates the run and the step
     step = meta["step"]
     target = (dest or policies_dir()) / name
@@ -88,6 +87,11 @@ def ship_policy(
         link.symlink_to(Path("../../pe_mjx/assets/policies") / name)
     store.read_meta(target)  # the shipped copy reads back
     return target, meta
+
+
+def check_name(name: str) -> None:
+    if not name or "/" in name or name.startswith("."):
+        raise ValueError(f"NAME: bad name {name!r} (a plain name such as mix-20-5-8)")
 
 
 MAX_CONFIG_BYTES = 1 << 20

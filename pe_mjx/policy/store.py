@@ -86,6 +86,11 @@ def short_error(err: Exception, limit: int = 300) -> str:
     return one_line(f"{type(err).__name__}: {err}", limit)
 
 
+RESUMABLE_COPY = "resumable_copy"
+"""The metadata key of a resumable copy's checkpoint (`pe_mjx.ppo.checkpoint`): learners only,
+no policy items to play."""
+
+
 def manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:
     options = ocp.CheckpointManagerOptions(max_to_keep=MAX_TO_KEEP, create=create)
     return ocp.CheckpointManager(
@@ -403,6 +408,11 @@ def _restore_policy(
         meta = _read_meta(run_dir, step)
     if team not in TEAMS:
         raise CheckpointError(f"unknown team {team!r}; expected one of {TEAMS}")
+    if meta.get(RESUMABLE_COPY):
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} is a resumable copy (learners only, no policies to "
+            f"play): resume it (`pe-mjx train --resume`) to its next checkpoint, or play the run"
+        )
     if team not in meta["network_configs"]:
         learned = ", ".join(meta["network_configs"]) or "none"
         raise CheckpointError(

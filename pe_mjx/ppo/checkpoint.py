@@ -14,6 +14,13 @@ A latest checkpoint damaged after the fact (a truncated or altered file) is one
 (`pe-mjx train --resume RUN --resume-intact`) resumes from that one and moves the damaged later
 ones to `RUN/damaged-checkpoints/<step>` (kept, not deleted: the run's next saves reuse their
 step numbers).
+
+A *resumable copy* (`write_resumable_copy`, `pe-mjx ship RUN NAME --resumable`) is what a run in
+progress commits to git between sessions: its config, curves and one checkpoint holding only the
+learners (parameters, optimiser and normaliser state), the RNG and the counters, without the
+arenas in flight (about 60% of a train state at 20-5-8) or the policy items. `--resume` on it
+continues exactly for the learners and draws the arenas afresh (a warning line says so): the
+episodes in flight at the cut are lost, nothing that was learned.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import contextlib
 import logging
 import math
 import os
+import shutil
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -31,7 +39,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from pe_mjx import interrupts
+from pe_mjx import interrupts, outputs
 from pe_mjx.names import TEAMS
 from pe_mjx.policy.quiet import quiet_logs
 from pe_mjx.policy.shipped import resolve_run
@@ -39,6 +47,7 @@ from pe_mjx.policy.store import (
     CHECKPOINT_DIR,
     DAMAGED_DIR,
     FORMAT_VERSION,
+    RESUMABLE_COPY,
     CheckpointError,
     DamagedCheckpointError,
     all_steps,
@@ -49,6 +58,7 @@ from pe_mjx.policy.store import (
     read_meta,
     short_error,
 )
+from pe_mjx.ppo.curves import CURVES_FILE
 from pe_mjx.ppo.distributed import barrier, is_lost_process_error, is_primary
 from pe_mjx.ppo.train import Trainer, TrainState
 
@@ -231,6 +241,42 @@ def read_experiment(run_dir: str | Path) -> dict[str, Any]:
     return meta["experiment"]
 
 
+def _learners(tree: Any) -> tuple[Any, ...]:
+    """What a resumable copy keeps of a train state, in the saved order: the teams (then an
+    opponent pool's state, if any) first, the RNG and the counters last."""
+    return (tree.teams, tree.pool, tree.rng, tree.iteration, tree.env_steps)
+
+
+def _with_fresh_arenas(trainer: Trainer, learners: tuple[Any, ...]) -> Any:
+    teams, pool, rng, iteration, env_steps = learners
+    fresh = jax.device_get(keys_to_data(trainer.init(int(iteration) + trainer.config.seed)))
+    return fresh.replace(teams=teams, pool=pool, rng=rng, iteration=iteration, env_steps=env_steps)
+
+
+def _restore_resumable_copy(run_dir: Path, step: int, trainer: Trainer, abstract: Any) -> Any:
+    """Checkpoint `step` of a resumable copy (`write_resumable_copy`): its learners, RNG and
+    counters, with freshly drawn arenas."""
+    target = _learners(abstract)
+    try:
+        with quiet_logs(), manager(run_dir, create=False) as mngr:
+            saved = mngr.restore(
+                step,
+                args=ocp.args.Composite(train=ocp.args.StandardRestore(everywhere(_flat(target)))),
+            ).train
+    except Exception as err:
+        raise DamagedCheckpointError(
+            f"checkpoint {step} in {run_dir} (a resumable copy) cannot be restored: "
+            f"{short_error(err)}"
+        ) from None
+    learners = _unflat(target, jax.tree.map(np.asarray, saved))
+    print(
+        f"pe-mjx: warning: checkpoint {step} of {run_dir} is a resumable copy without arenas: "
+        f"resuming its learners, counters and RNG exactly, with freshly drawn arenas",
+        file=sys.stderr,
+    )
+    return _with_fresh_arenas(trainer, learners)
+
+
 def _restore_across_versions(
     run_dir: Path, step: int, trainer: Trainer, abstract: Any, first_error: Exception
 ) -> Any:
@@ -274,21 +320,22 @@ def _restore_across_versions(
         learners,
     )
     rng, iteration, env_steps = (np.asarray(saved[k]) for k in tail_keys)
-    fresh = jax.device_get(keys_to_data(trainer.init(int(iteration) + trainer.config.seed)))
     print(
         f"pe-mjx: warning: {run_dir} was saved by another pe-mjx version whose arena state "
         f"differs ({len(keys)} saved arrays, {n_teams} of them the learners'): resuming its "
         f"learners, counters and RNG with freshly drawn arenas",
         file=sys.stderr,
     )
-    return fresh.replace(teams=teams, pool=pool, rng=rng, iteration=iteration, env_steps=env_steps)
+    return _with_fresh_arenas(trainer, (teams, pool, rng, iteration, env_steps))
 
 
 def _restore_step(run_dir: Path, step: int, trainer: Trainer, abstract: Any) -> Any:
     """The train state of checkpoint `step` as host arrays (`abstract`: its key-data shapes);
     `DamagedCheckpointError` when its metadata or train item cannot be read back."""
-    read_meta(run_dir, step)
+    meta = read_meta(run_dir, step)
     _require_train_item(run_dir, step)
+    if meta.get(RESUMABLE_COPY):
+        return _restore_resumable_copy(run_dir, step, trainer, abstract)
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
             restored = mngr.restore(
@@ -401,6 +448,61 @@ def resume_intact(run_dir: str | Path) -> int:
     except DamagedCheckpointError as err:
         step, _ = _fall_back(run_dir, err, read, fallback=True)
     return step
+
+
+def write_resumable_copy(
+    run_dir: str | Path, target: str | Path, step: int | None = None, replace: bool = False
+) -> dict[str, Any]:
+    """Writes `target`, the copy of run `run_dir` to commit while it is in progress: its
+    `config.json` and curves, and checkpoint `step` (default: the latest) with the learners,
+    RNG and counters only (module docstring). `pe-mjx train --resume TARGET` (or a copy of it
+    back under `runs/`) continues the run. Built beside `target` and renamed once; returns the
+    checkpoint's metadata. A `ValueError` (an existing target without `replace`) or a
+    `CheckpointError` before anything is written."""
+    from pe_mjx.experiment import ExperimentConfig
+
+    run_dir, target = Path(run_dir), Path(target)
+    meta = read_meta(run_dir, step)
+    step = meta["step"]
+    if meta["format_version"] < 2:
+        raise CheckpointError(f"{run_dir} was made by an older pe-mjx: it cannot be resumed")
+    _require_train_item(run_dir, step)
+    if target.exists() and not replace:
+        raise ValueError(f"{target} exists (--replace to replace it)")
+    source, dest = run_dir.resolve(), target.resolve()
+    if dest == source or dest in source.parents or source in dest.parents:
+        raise ValueError(f"{target} holds the run or lies inside it: choose another --dest")
+    if not (run_dir / "config.json").is_file():
+        raise CheckpointError(f"{run_dir} has no config.json: it is not a training run")
+    trainer = _shape_trainer(ExperimentConfig.from_dict(meta["experiment"]))
+    state = _restore_step(
+        run_dir, step, trainer, jax.eval_shape(keys_to_data, trainer.abstract_state())
+    )
+    saved_meta = {k: v for k, v in meta.items() if k != "step"} | {RESUMABLE_COPY: True}
+    target.parent.mkdir(parents=True, exist_ok=True)
+    stage = outputs.temp_path(target, keep_suffix=False)
+    stage.mkdir()
+    try:
+        for name in ("config.json", CURVES_FILE):
+            if (run_dir / name).is_file():
+                shutil.copy2(run_dir / name, stage / name)
+        with quiet_logs(), manager(stage, create=True) as mngr:
+            mngr.save(
+                step,
+                args=ocp.args.Composite(
+                    train=ocp.args.StandardSave(_flat(_learners(state))),
+                    meta=ocp.args.JsonSave(saved_meta),
+                ),
+                force=True,
+            )
+            mngr.wait_until_finished()
+        if target.exists():  # replace
+            shutil.rmtree(target)
+        os.replace(stage, target)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    return meta
 
 
 def _shape_trainer(config: Any) -> Trainer:

@@ -19,6 +19,7 @@ from pe_mjx.policy import store
 from pe_mjx.policy.resolve import load_policy, resolve_policy
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.checkpoint import CheckpointError
+from pe_mjx.ppo.curves import read_rows
 from pe_mjx.ppo.run import resume_config, train
 from tests.tiny_config import tiny
 
@@ -532,3 +533,60 @@ def test_truncated_checkpoint_gives_a_clear_error(runs, tmp_path):
             f.write_bytes(f.read_bytes()[: f.stat().st_size // 3])
     with pytest.raises(CheckpointError, match=r"cannot be restored|unreadable"):
         load_policy(broken, team="pursuer")
+
+
+def _bytes(directory: Path) -> int:
+    return sum(f.stat().st_size for f in directory.rglob("*") if f.is_file())
+
+
+def test_a_resumable_copy_keeps_the_learners_and_the_run_goes_on_from_it(runs, tmp_path, capsys):
+    """`pe-mjx ship RUN NAME --dest D --resumable`: the run's config, curves and checkpoint 2's
+    learners, RNG and counters (no arenas, no policy items); `--resume` restores those exactly,
+    with one warning line, draws fresh arenas and trains on to the budget."""
+    from pe_mjx.cli import main
+    from pe_mjx.ppo.train import Trainer
+
+    root, _, _ = runs
+    split = root / "split"
+    main(["ship", str(split), "split-copy", "--dest", str(tmp_path), "--resumable", "--step", "2"])
+    copy = tmp_path / "split-copy"
+    assert "continue it with `pe-mjx train --resume" in capsys.readouterr().out
+    assert sorted(p.name for p in copy.iterdir()) == ["checkpoints", "config.json", "curves.csv.gz"]
+    assert [p.name for p in (copy / "checkpoints").iterdir()] == ["2"]
+    step = copy / "checkpoints" / "2"
+    assert sorted(p.name for p in step.iterdir() if p.is_dir()) == ["meta", "train"]
+    assert _bytes(step) < 0.6 * _bytes(split / "checkpoints" / "2")
+    # The learners, RNG and counters exactly as checkpoint 2 of the run had them.
+    trainer = Trainer(CONFIG)
+    abstract = jax.eval_shape(checkpoint.keys_to_data, trainer.abstract_state())
+    source = checkpoint._restore_step(split, 2, trainer, abstract)
+    state = checkpoint.restore_train_state(copy, trainer)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is a resumable copy without arenas" in err[0], err
+    for team in ("pursuer", "evader"):
+        assert _max_diff(source.teams[team], state.teams[team]) == 0.0
+    assert np.array_equal(source.rng, jax.random.key_data(state.rng))
+    assert int(state.iteration) == 2 and int(state.env_steps) == 2 * 64
+    # Its policies are not there to play: one line saying what it is.
+    with pytest.raises(CheckpointError, match="is a resumable copy"):
+        load_policy(copy, team="pursuer")
+    # The run goes on from the copy to its budget; the curves' rows after iteration 2 (the run
+    # had gone on to 4 before it was copied) are those of the resumed run.
+    before = read_rows(copy / "curves.csv.gz")
+    _, done = train(resume_config(copy), copy, resume=True, progress=False)
+    assert int(done.iteration) == 4
+    after = read_rows(copy / "curves.csv.gz")
+    assert [r["env_steps"] for r in after] == [64, 128, 192, 256]
+    assert after[1] == before[1] and after[-1]["wall_time"] > before[-1]["wall_time"]
+    load_policy(copy, team="pursuer")  # its own new checkpoint plays
+    # Refused in one line each: no --dest, an existing copy without --replace.
+    for argv, message in (
+        (["ship", str(split), "c"], "--resumable needs --dest"),
+        (["ship", str(split), "split-copy", "--dest", str(tmp_path)], "exists (--replace"),
+        (["ship", str(split), root.name, "--dest", str(root.parent), "--replace"], "holds the run"),
+        (["ship", str(split), "x", "--dest", str(split / "checkpoints")], "lies inside it"),
+    ):
+        with pytest.raises(SystemExit):
+            main([*argv, "--resumable"])
+        assert message in capsys.readouterr().err
+    assert sorted(p.name for p in (split / "checkpoints").iterdir()) == ["2", "4"]
