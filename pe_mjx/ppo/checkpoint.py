@@ -154,6 +154,24 @@ def _unflat(template: Any, flat: dict[str, Any]) -> Any:
     return jax.tree.unflatten(treedef, values)
 
 
+def _save_items(
+    mngr: ocp.CheckpointManager,
+    step: int,
+    train: dict[str, Any],
+    meta: dict[str, Any],
+    policies: dict[str, Any] | None = None,
+) -> None:
+    """Writes checkpoint `step`: the flat train item, the metadata and any policy items."""
+    mngr.save(
+        step,
+        args=ocp.args.Composite(
+            train=ocp.args.StandardSave(train), **(policies or {}), meta=ocp.args.JsonSave(meta)
+        ),
+        force=True,
+    )
+    mngr.wait_until_finished()
+
+
 def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
     """Writes a checkpoint of `train_state` (blocking); returns its iteration.
 
@@ -181,16 +199,7 @@ def save(run_dir: str | Path, trainer: Trainer, train_state: TrainState) -> int:
             _lost_process_logs_dropped(),
             manager(run_dir, create=True) as mngr,
         ):
-            mngr.save(
-                step,
-                args=ocp.args.Composite(
-                    train=ocp.args.StandardSave(_flat(keys_to_data(train_state))),
-                    **policies,
-                    meta=ocp.args.JsonSave(meta),
-                ),
-                force=True,
-            )
-            mngr.wait_until_finished()
+            _save_items(mngr, step, _flat(keys_to_data(train_state)), meta, policies)
     except Exception as err:
         if jax.process_count() > 1 and is_lost_process_error(err):
             # Another process died while this one waited for it at the save's barrier: the
@@ -487,15 +496,7 @@ def write_resumable_copy(
             if (run_dir / name).is_file():
                 shutil.copy2(run_dir / name, stage / name)
         with quiet_logs(), manager(stage, create=True) as mngr:
-            mngr.save(
-                step,
-                args=ocp.args.Composite(
-                    train=ocp.args.StandardSave(_flat(_learners(state))),
-                    meta=ocp.args.JsonSave(saved_meta),
-                ),
-                force=True,
-            )
-            mngr.wait_until_finished()
+            _save_items(mngr, step, _flat(_learners(state)), saved_meta)
         if target.exists():  # replace
             shutil.rmtree(target)
         os.replace(stage, target)
