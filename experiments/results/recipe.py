@@ -176,6 +176,26 @@ def run_of(spec: str) -> str | None:
     return run
 
 
+def provenance(metas: list[dict]) -> dict[str, int]:
+    """How many of a table's evaluations ran from a clean commit, from a work tree with
+    uncommitted changes, or before pe-mjx recorded its code version (`meta.code_version`)."""
+    counts = {"clean": 0, "dirty": 0, "not_recorded": 0}
+    for meta in metas:
+        version = meta.get("code_version")
+        counts[
+            "not_recorded" if version is None else "dirty" if version["git_dirty"] else "clean"
+        ] += 1
+    return counts
+
+
+def provenance_cell(counts: dict[str, int]) -> str:
+    total = sum(counts.values())
+    if counts["clean"] == total:
+        return "clean commit"
+    parts = {"clean": "clean commit", "dirty": "dirty tree", "not_recorded": "not recorded"}
+    return ", ".join(f"{n} of {total} {parts[k]}" for k, n in counts.items() if n)
+
+
 def evaluation_seconds(results: dict) -> float:
     """The wall time of the `pe-mjx evaluate` call that wrote `results` (`meta.seconds`) plus
     the play time recorded with each pairing it kept from an earlier call (whose start-up is
@@ -199,6 +219,7 @@ def compute() -> dict:
             "devices": sorted({d for m in metas for d in m["devices"]}),
             "runs": sorted({r for r in trained_by.values() if r}),
             "not_logged": sorted(Path(s).name for s, r in trained_by.items() if r is None),
+            "provenance": provenance(metas),
         }
     used = sorted({r for t in tables.values() for r in t["runs"]})
     logged = sorted(path.parent.name for path in RUNS.glob(f"*/{CURVES_FILE}"))
@@ -522,7 +543,8 @@ def compute_markdown(data: dict) -> str:
         if t.get("not_logged"):
             trained += f"; not logged: {', '.join(f'`{n}`' for n in t['not_logged'])}"
         hours = (f"{t[key]:.2f}" for key in ("training_h", "evaluation_h", "total_h"))
-        rows.append((label, trained, *hours))
+        evaluated = provenance_cell(t["provenance"]) if "provenance" in t else ""
+        rows.append((label, trained, *hours, evaluated))
     text = (
         f"Wall hours on a {data['machine']['cpu_cores']}-core CPU, no GPU, mostly shared with "
         "other jobs. Training: the intervals between the rows of each run's "
@@ -530,9 +552,17 @@ def compute_markdown(data: dict) -> str:
         "between resumed chunks and counts as the run's median interval. A table's runs are "
         "those whose policies its evaluations played (shared runs count in each table). "
         "Evaluation: `meta.seconds` of its reports, plus the recorded play time of each "
-        "pairing a report kept from an earlier one."
+        "pairing a report kept from an earlier one. Evaluated from: the code version each "
+        "report recorded (`meta.code_version`; reports older than that field: not recorded)."
     )
-    header = ("Table", "Trained by (`train/runs/`)", "Training h", "Evaluation h", "Total h")
+    header = (
+        "Table",
+        "Trained by (`train/runs/`)",
+        "Training h",
+        "Evaluation h",
+        "Total h",
+        "Evaluated from",
+    )
     return markdown("Compute per table", text, header, rows)
 
 

@@ -80,3 +80,16 @@ def test_a_pause_between_resumed_chunks_counts_as_one_median_interval(tmp_path, 
     assert time["hours"] == 0.75
     assert time["paused_h"] == 5.0
     assert time["env_steps"] == 8 * 2048
+
+
+def test_provenance_counts_each_reports_code_version():
+    recipe = _load()
+    clean = {"code_version": {"git_commit": "a" * 40, "git_dirty": False}}
+    dirty = {"code_version": {"git_commit": "b" * 40, "git_dirty": True}}
+    counts = recipe.provenance([clean, dirty, dirty, {}])
+    assert counts == {"clean": 1, "dirty": 2, "not_recorded": 1}
+    assert (
+        recipe.provenance_cell(counts)
+        == "1 of 4 clean commit, 2 of 4 dirty tree, 1 of 4 not recorded"
+    )
+    assert recipe.provenance_cell(recipe.provenance([clean, clean])) == "clean commit"
