@@ -334,6 +334,8 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
         "--resumable")  # fmt: skip
     add("ship-resumable-itself", "ship", str(runs / "good"), "good", "--dest", str(runs),
         "--resumable", "--replace")  # fmt: skip
+    add("ship-resumable-onto-file", "ship", str(runs / "good"), "afile", "--dest", str(w),
+        "--resumable", "--replace")  # fmt: skip
     add("ship-resumable-over-its-folder", "ship", str(runs / "good"), "runs", "--dest", str(w),
         "--resumable", "--replace")  # fmt: skip
     for name in ("good", "meta_truncated", "params_truncated", "only_unfinished_step"):

@@ -471,16 +471,18 @@ def write_resumable_copy(
     from pe_mjx.experiment import ExperimentConfig
 
     run_dir, target = Path(run_dir), Path(target)
-    meta = read_meta(run_dir, step)
-    step = meta["step"]
-    if meta["format_version"] < 2:
-        raise CheckpointError(f"{run_dir} was made by an older pe-mjx: it cannot be resumed")
-    _require_train_item(run_dir, step)
+    if target.exists() and not target.is_dir():
+        raise ValueError(f"{target} exists and is not a directory: refused")
     if target.exists() and not replace:
         raise ValueError(f"{target} exists (--replace to replace it)")
     source, dest = run_dir.resolve(), target.resolve()
     if dest == source or dest in source.parents or source in dest.parents:
         raise ValueError(f"{target} holds the run or lies inside it: choose another --dest")
+    meta = read_meta(run_dir, step)
+    step = meta["step"]
+    if meta["format_version"] < 2:
+        raise CheckpointError(f"{run_dir} was made by an older pe-mjx: it cannot be resumed")
+    _require_train_item(run_dir, step)
     if not (run_dir / "config.json").is_file():
         raise CheckpointError(f"{run_dir} has no config.json: it is not a training run")
     trainer = _shape_trainer(ExperimentConfig.from_dict(meta["experiment"]))
@@ -489,6 +491,7 @@ def write_resumable_copy(
     )
     saved_meta = {k: v for k, v in meta.items() if k != "step"} | {RESUMABLE_COPY: True}
     target.parent.mkdir(parents=True, exist_ok=True)
+    outputs.clean_stale(target.parent)  # the temporaries of copies killed midway
     stage = outputs.temp_path(target, keep_suffix=False)
     stage.mkdir()
     try:
