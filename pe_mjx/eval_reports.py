@@ -1,5 +1,5 @@
 """An evaluation's reports: the paper's table layout (results.md), results.csv, trials.csv,
-results.json and the heatmaps."""
+results.json and the heatmaps; and what a results.json read back says of its cost and code."""
 
 from __future__ import annotations
 
@@ -111,6 +111,26 @@ def write_reports(
     paths["json"].write_text(dumps(payload))
     paths.update(plot_heatmaps(results, out, env_config.name, meta.get("trials")))
     return paths
+
+
+def evaluation_seconds(results: dict[str, Any]) -> float:
+    """The wall time of the `pe-mjx evaluate` call that wrote `results` (a results.json read back;
+    `meta.seconds`) plus the play time recorded with each pairing it kept from an earlier call
+    (whose start-up is not recorded)."""
+    kept = sum(p["seconds"] for p in results["pairings"] if p.get("kept"))
+    return results["meta"]["seconds"] + kept
+
+
+def code_provenance(metas: list[dict[str, Any]]) -> dict[str, int]:
+    """How many of the results.json `meta`s were written from a clean commit, from a work tree
+    with uncommitted changes, or before pe-mjx recorded its code version (`meta.code_version`)."""
+    counts = {"clean": 0, "dirty": 0, "not_recorded": 0}
+    for meta in metas:
+        version = meta.get("code_version")
+        counts[
+            "not_recorded" if version is None else "dirty" if version["git_dirty"] else "clean"
+        ] += 1
+    return counts
 
 
 _NUMBERS = re.compile(r"\[\s*([-+0-9.eE,\s]|NaN|Infinity)*\s*\]")

@@ -3,7 +3,8 @@
 `paper_runs()` gives the twelve co-evolutions of paper IV-B (four encoders at three scales, each
 training a pursuer and an evader policy with the same encoder, 10 million env steps); `PAPER`
 holds the paper's numbers that `pe-mjx reproduce` sets beside ours, and `TABLES` which
-scene and training scales each table uses.
+scene and training scales each table uses. `SETTINGS` holds what the paper says of each training
+setting, in its own words, and `hyperparameters` sets a config's settings beside them.
 """
 
 from __future__ import annotations
@@ -117,3 +118,130 @@ TABLES = {
     "V": ("16-4-4", "20-5-8", "16-4-4"),
     "VI": ("24-6-12", "20-5-8", "24-6-12"),
 }
+
+
+NOT_STATED = "not stated"
+# What the paper says of each training setting: its value (or NOT_STATED) and the words it says
+# it in (quoted; its equations and Table I's rows transcribed), or None where it says nothing of it.
+SETTINGS = {
+    "algorithm": ("IPPO, one shared policy per team", "we utilize the parameter-sharing technique"),
+    "network": (NOT_STATED, None),
+    "learning_rate": (NOT_STATED, None),
+    "ppo": (NOT_STATED, None),
+    "gamma": (NOT_STATED, "γ ∈ (0,1] is a discount factor"),
+    "reward_scale": (NOT_STATED, None),
+    "pursuit_scale": ("10", "f_p = 10 / max(d_op, d_cap)"),
+    "capture": (NOT_STATED, "r_s is the reward for successful capture"),
+    "reward_constants": (NOT_STATED, "d_danger is a constant"),
+    "evader_reward": ("f_c terms and r_e only", "if e_j is not in a collision or captured"),
+    "mix_queries": (
+        "every entity's state gives a query",
+        "each agent's original state is transformed into query, key, and value components",
+    ),
+    "backend": ("no simulator named", "Timestep 0.2 s"),
+    "episode": ("0.2 s steps, 200 s episodes", "Max Iteration Time Per Episode 200 s"),
+    "budget": ("10M time steps", "By conducting training for 10 million time steps"),
+    "seeds": (NOT_STATED, None),
+    "evaluation": (
+        "100 trials per pairing, no seed, no intervals",
+        "We perform 100 trials for each comparison",
+    ),
+    "per_evader_cost": ("n' / m' in the text", "It is calculated by dividing n' by m'"),
+    "mlp_other_scenes": (
+        "left out of Tables V, VI",
+        "the policy using MLP fails to adapt to the scale change",
+    ),
+}
+
+
+def says(key: str) -> str:
+    """The paper's value of setting `key` with the words it comes from, as a table cell."""
+    value, words = SETTINGS[key]
+    return value if words is None else f'{value} ("{words}")'
+
+
+def learning_rate(config: ExperimentConfig, team: str) -> float:
+    """The Adam step size `team` trains with: its own, else `ppo.learning_rate`."""
+    rate = config.team(team).learning_rate
+    return config.ppo.learning_rate if rate is None else rate
+
+
+def step_size(x: float) -> str:
+    """A step size as the code and the notes write it: 3e-3 (docs/results.md's number check,
+    tests/test_results_doc.py, reads decimals only; the rows of `hyperparameters` are checked
+    against the config by tests/experiments/test_recipe.py)."""
+    mantissa, exponent = f"{x:.0e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def _num(x: float) -> str:
+    return f"{x:g}"
+
+
+def hyperparameters(config: ExperimentConfig, env_steps: int) -> list[dict]:
+    """Rows (setting, pursuers, evaders, paper): the training settings of `config` for a budget of
+    `env_steps` beside what the paper says of each (`SETTINGS`), "same" where both teams share
+    one. docs/results.md's recipe gives them for every co-evolution of Tables II-VI."""
+    ppo, reward = config.ppo, config.env.reward
+    net = {team: config.team(team).network for team in ("pursuer", "evader")}  # in that order
+    iteration = ppo.num_envs * ppo.unroll_length
+    same = "same"
+    rows = [
+        ("Algorithm", "IPPO, one parameter set per team", same, says("algorithm")),
+        (
+            "Encoder width / MIX heads; policy and value heads",
+            *(f"{n.width} / {n.num_heads}; 2 x {n.hidden}" for n in net.values()),
+            says("network"),
+        ),
+        (
+            "Adam step size",
+            step_size(learning_rate(config, "pursuer")),
+            step_size(learning_rate(config, "evader")),
+            says("learning_rate"),
+        ),
+        ("Step-size schedule", f"{ppo.lr_schedule} to 0 over the budget", same, says("ppo")),
+        (
+            "Arenas x steps per iteration; epochs x minibatches",
+            f"{ppo.num_envs} x {ppo.unroll_length} ({iteration:,} env steps); "
+            f"{ppo.update_epochs} x {ppo.num_minibatches}",
+            same,
+            says("ppo"),
+        ),
+        (
+            "Discount γ / GAE λ",
+            f"{_num(ppo.gamma)} / {_num(ppo.gae_lambda)}",
+            same,
+            says("gamma"),
+        ),
+        (
+            "Clip / entropy / value / gradient norm",
+            f"{_num(ppo.clip_epsilon)} / {_num(ppo.entropy_coef)} / {_num(ppo.value_coef)} / "
+            f"{_num(ppo.max_grad_norm)}",
+            same,
+            says("ppo"),
+        ),
+        (
+            "Reward scale before GAE",
+            _num(config.pursuer.reward_scale),
+            _num(config.evader.reward_scale),
+            says("reward_scale"),
+        ),
+        (
+            "Rewards",
+            f"r_c {_num(reward.collision)}, d_danger {_num(reward.danger_distance)} m, f_p = "
+            f"{_num(reward.pursuit_scale)} / max(d, {_num(reward.capture_distance)} m), "
+            f"r_s {_num(reward.capture)}",
+            f"r_c {_num(reward.collision)}, d_danger {_num(reward.danger_distance)} m, "
+            f"r_e {_num(reward.evader_alive)}, flee {_num(reward.evader_flee)} per m",
+            f"f_p's {says('pursuit_scale')}; the other constants {NOT_STATED}",
+        ),
+        ("Budget", f"{env_steps:,} env steps", same, says("budget")),
+        (
+            "Episode",
+            f"{config.env.max_steps} steps of {_num(config.env.control_dt)} s",
+            same,
+            says("episode"),
+        ),
+    ]
+    keys = ("setting", "pursuers", "evaders", "paper")
+    return [dict(zip(keys, row, strict=True)) for row in rows]

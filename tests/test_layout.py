@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "pe_mjx"
 # Lower layers never import higher ones; modules of one layer may import each other (no cycles).
 LAYERS: dict[str, tuple[str, ...]] = {
     "names": ("names", "_quiet", "interrupts", "outputs", "sizes"),
-    "config": ("config", "experiment", "eval_config", "paper"),
+    "config": ("config", "config_files", "experiment", "eval_config", "paper"),
     "scene": ("scene",),
     "env": (
         "env",
@@ -66,6 +66,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "ppo.distributed",
         "ppo.train",
         "ppo.checkpoint",
+        "ppo.resumable",
         "ppo.curves",
         "ppo.run_files",
         "ppo.loggers",

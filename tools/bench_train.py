@@ -18,6 +18,7 @@ module of its own: no tool imports another.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 from pathlib import Path
@@ -245,95 +246,132 @@ def make_iteration(
         opt_state = {t: opt.init(p) for t, p in params.items()}
         return params, opt_state, env_state, obs, keys[0]
 
-    def stack(obs, agents):  # {agent: [B, D]} -> [B, A, D]
-        return jnp.stack([obs[a] for a in agents], axis=1)
+    def step(params, carry, key):
+        env_state, obs = carry
+        k_act, k_env = jax.random.split(key)
+        actions, data = {}, {}
+        for (team, agents), k in zip(
+            teams.items(), jax.random.split(k_act, len(teams)), strict=True
+        ):
+            x = _stack(obs, agents)
+            action, logp, value = _act(nets[team], params[team], x, k)
+            actions.update({a: action[:, i] for i, a in enumerate(agents)})
+            data[team] = (x, action, logp, value)
+        obs2, env_state2, reward, done, _ = jax.vmap(env.step)(
+            jax.random.split(k_env, num_envs), env_state, actions
+        )
+        out = {
+            team: Transition(
+                *data[team], _stack(reward, agents), _stack(done, agents).astype(jnp.float32)
+            )
+            for team, agents in teams.items()
+        }
+        return (env_state2, obs2), out
 
     def iteration(state):
         params, opt_state, env_state, obs, key = state
-
-        def step(carry, key):
-            env_state, obs = carry
-            k_act, k_env = jax.random.split(key)
-            actions, data = {}, {}
-            for (team, agents), k in zip(
-                teams.items(), jax.random.split(k_act, len(teams)), strict=True
-            ):
-                x = stack(obs, agents)
-                logits, value = nets[team].apply(params[team], x)
-                action = jax.random.categorical(k, logits)
-                logp = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], axis=-1)[
-                    ..., 0
-                ]
-                actions.update({a: action[:, i] for i, a in enumerate(agents)})
-                data[team] = (x, action, logp, value)
-            obs2, env_state2, reward, done, _ = jax.vmap(env.step)(
-                jax.random.split(k_env, num_envs), env_state, actions
-            )
-            out = {
-                team: Transition(
-                    *data[team], stack(reward, agents), stack(done, agents).astype(jnp.float32)
-                )
-                for team, agents in teams.items()
-            }
-            return (env_state2, obs2), out
-
         key, k_roll, k_upd = jax.random.split(key, 3)
         (env_state, obs), traj = jax.lax.scan(
-            step, (env_state, obs), jax.random.split(k_roll, unroll)
+            functools.partial(step, params), (env_state, obs), jax.random.split(k_roll, unroll)
         )
         metrics = {}
         new_params, new_opt = {}, {}
         for (team, agents), k in zip(
             teams.items(), jax.random.split(k_upd, len(teams)), strict=True
         ):
-            tr = traj[team]
-            _, last_value = nets[team].apply(params[team], stack(obs, agents))
-
-            def gae(carry, t):
-                adv, next_value = carry
-                delta = t.reward + gamma * next_value * (1 - t.done) - t.value
-                adv = delta + gamma * lam * (1 - t.done) * adv
-                return (adv, t.value), adv
-
-            _, adv = jax.lax.scan(gae, (jnp.zeros_like(last_value), last_value), tr, reverse=True)
-            targets = adv + tr.value
-            batch = (tr.obs, tr.action, tr.log_prob, adv, targets)
-            n = unroll * num_envs * len(agents)
-            batch = jax.tree.map(lambda x, n=n: x.reshape(n, *x.shape[3:]), batch)
-
-            def loss_fn(p, mb, team=team):
-                x, action, old_logp, adv, target = mb
-                logits, value = nets[team].apply(p, x)
-                logp_all = jax.nn.log_softmax(logits)
-                logp = jnp.take_along_axis(logp_all, action[..., None], axis=-1)[..., 0]
-                ratio = jnp.exp(logp - old_logp)
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-                pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip, 1 + clip) * adv).mean()
-                vf = 0.5 * jnp.square(value - target).mean()
-                ent = -(jnp.exp(logp_all) * logp_all).sum(-1).mean()
-                return pg + 0.5 * vf - 0.01 * ent
-
-            def minibatch(carry, mb):
-                p, o = carry
-                loss, grads = jax.value_and_grad(loss_fn)(p, mb)
-                updates, o = opt.update(grads, o)
-                return (optax.apply_updates(p, updates), o), loss
-
-            def epoch(carry, key, batch=batch, n=n):
-                perm = jax.random.permutation(key, n)
-                shuffled = jax.tree.map(
-                    lambda x: x[perm].reshape(minibatches, -1, *x.shape[1:]), batch
-                )
-                return jax.lax.scan(minibatch, carry, shuffled)
-
-            (p, o), losses = jax.lax.scan(
-                epoch, (params[team], opt_state[team]), jax.random.split(k, epochs)
+            _, last_value = nets[team].apply(params[team], _stack(obs, agents))
+            batch = _ppo_batch(traj[team], last_value, gamma, lam)
+            loss = functools.partial(_ppo_loss, nets[team], clip=clip)
+            (p, o), losses = _ppo_epochs(
+                loss, opt, (params[team], opt_state[team]), batch, k, epochs, minibatches
             )
             new_params[team], new_opt[team] = p, o
             metrics[f"loss/{team}"] = losses.mean()
         return (new_params, new_opt, env_state, obs, key), metrics
 
     return init, iteration
+
+
+def _stack(tree: dict[str, jax.Array], agents: list[str]) -> jax.Array:
+    """{agent: [B, ...]} -> [B, A, ...]."""
+    return jnp.stack([tree[a] for a in agents], axis=1)
+
+
+def _act(
+    net: ActorCritic, params: Any, x: jax.Array, key: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """A team's sampled actions, their log-probabilities and the values, each [B, A], for its
+    agents' observations `x` [B, A, D]."""
+    logits, value = net.apply(params, x)
+    action = jax.random.categorical(key, logits)
+    logp = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], axis=-1)[..., 0]
+    return action, logp, value
+
+
+def _advantages(tr: Transition, last_value: jax.Array, gamma: float, lam: float) -> jax.Array:
+    """GAE over a team's trajectory `tr` (fields [T, B, A, ...]), bootstrapped from the values
+    `last_value` [B, A] after its last step: [T, B, A]."""
+
+    def gae(carry, t):
+        adv, next_value = carry
+        delta = t.reward + gamma * next_value * (1 - t.done) - t.value
+        adv = delta + gamma * lam * (1 - t.done) * adv
+        return (adv, t.value), adv
+
+    _, adv = jax.lax.scan(gae, (jnp.zeros_like(last_value), last_value), tr, reverse=True)
+    return adv
+
+
+def _ppo_batch(tr: Transition, last_value: jax.Array, gamma: float, lam: float) -> tuple:
+    """A team's trajectory as PPO's batch: (obs, action, log-prob, advantage, value target),
+    each with the steps, envs and agents folded into one axis [T * B * A, ...]."""
+    adv = _advantages(tr, last_value, gamma, lam)
+    batch = (tr.obs, tr.action, tr.log_prob, adv, adv + tr.value)
+    n = adv.size
+    return jax.tree.map(lambda x: x.reshape(n, *x.shape[3:]), batch)
+
+
+def _ppo_loss(net: ActorCritic, p: Any, mb: tuple, clip: float) -> jax.Array:
+    """Clipped PPO loss of one minibatch `mb` (obs, action, old log-prob, advantage, target),
+    with the advantages normalised in the minibatch, value weight 0.5 and entropy 0.01."""
+    x, action, old_logp, adv, target = mb
+    logits, value = net.apply(p, x)
+    logp_all = jax.nn.log_softmax(logits)
+    logp = jnp.take_along_axis(logp_all, action[..., None], axis=-1)[..., 0]
+    ratio = jnp.exp(logp - old_logp)
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip, 1 + clip) * adv).mean()
+    vf = 0.5 * jnp.square(value - target).mean()
+    ent = -(jnp.exp(logp_all) * logp_all).sum(-1).mean()
+    return pg + 0.5 * vf - 0.01 * ent
+
+
+def _ppo_epochs(
+    loss_fn: Any,
+    opt: optax.GradientTransformation,
+    carry: tuple[Any, Any],
+    batch: tuple,
+    key: jax.Array,
+    epochs: int,
+    minibatches: int,
+) -> tuple[tuple[Any, Any], jax.Array]:
+    """`epochs` passes over `batch` (leaves [n, ...]) in `minibatches` shuffled minibatches,
+    one optimiser step each, from `carry` = (params, optimiser state): the final carry and the
+    losses [epochs, minibatches]."""
+    n = jax.tree.leaves(batch)[0].shape[0]
+
+    def minibatch(carry, mb):
+        p, o = carry
+        loss, grads = jax.value_and_grad(loss_fn)(p, mb)
+        updates, o = opt.update(grads, o)
+        return (optax.apply_updates(p, updates), o), loss
+
+    def epoch(carry, key):
+        perm = jax.random.permutation(key, n)
+        shuffled = jax.tree.map(lambda x: x[perm].reshape(minibatches, -1, *x.shape[1:]), batch)
+        return jax.lax.scan(minibatch, carry, shuffled)
+
+    return jax.lax.scan(epoch, carry, jax.random.split(key, epochs))
 
 
 if __name__ == "__main__":

@@ -7,72 +7,39 @@ Reads the code's defaults (`pe_mjx.experiment.default_config("20-5-8")`), the co
 curves of every committed run (`train/runs/*/config.json`, `curves.csv.gz`), the evaluation
 reports each table of the page is read from (the policies they played, `meta.seconds`), and
 the committed measurements a deviation cites (the evader diagnosis, the backend comparison, the
-seed spread); beside them `PAPER`, what the paper says of each setting, in its own words. Writes
+seed spread); beside them `pe_mjx.paper.SETTINGS`, what the paper says of each setting, in its own
+words, and `pe_mjx.paper.hyperparameters`, the defaults' settings beside them. Writes
 OUT/recipe.json and three tables, OUT/deviations.md, OUT/hyperparameters.md and OUT/compute.md,
 which docs/results.md quotes row for row (the links of these files point from OUT; the page's,
 the same rows, from docs/).
 
 Training time: a run logs one row per iteration with the wall clock (`wall_time`, UNIX
-seconds). A run resumed several times has pauses between its chunks, so its time is the sum of
-the intervals between consecutive rows, where an interval longer than `PAUSE_S` (10 minutes: an
-evaluation or a restart inside a chunk takes a few minutes at most; recipe.json gives, per run,
-the longest interval counted and the shortest pause) is a pause and counts as one median
-interval of that run (the iteration that ended it). The start-up before the first row is not
-logged and not counted. These are wall hours of the project's 2-core CPU, mostly shared with
-other jobs, so more than a run alone would take.
+seconds); `pe_mjx.ppo.curves.training_time` sums the intervals between rows, a pause between
+resumed chunks (an interval over `PAUSE_S`, 10 minutes) counted as one median interval, and
+recipe.json gives per run the longest interval counted and the shortest pause. These are wall
+hours of the project's 2-core CPU, mostly shared with other jobs, so more than a run alone would
+take.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
 import re
-import statistics
 from pathlib import Path
 
 import tyro
 
+from pe_mjx.eval_reports import code_provenance, evaluation_seconds
 from pe_mjx.experiment import ExperimentConfig, default_config
 from pe_mjx.paper import PAPER as PAPER_TABLES
-from pe_mjx.ppo.curves import CURVES_FILE, read_rows
+from pe_mjx.paper import SETTINGS, hyperparameters, learning_rate, says, step_size
+from pe_mjx.ppo import curves
+from pe_mjx.ppo.curves import CURVES_FILE, PAUSE_S, read_rows
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "docs" / "data"
 RUNS = ROOT / "train" / "runs"
-PAUSE_S = 600
-NOT_STATED = "not stated"
-# What the paper says of each setting: its value (or NOT_STATED) and the words it says it in
-# (quoted; its equations and Table I's rows transcribed), or None where it says nothing of it.
-PAPER = {
-    "algorithm": ("IPPO, one shared policy per team", "we utilize the parameter-sharing technique"),
-    "network": (NOT_STATED, None),
-    "learning_rate": (NOT_STATED, None),
-    "ppo": (NOT_STATED, None),
-    "gamma": (NOT_STATED, "γ ∈ (0,1] is a discount factor"),
-    "reward_scale": (NOT_STATED, None),
-    "pursuit_scale": ("10", "f_p = 10 / max(d_op, d_cap)"),
-    "capture": (NOT_STATED, "r_s is the reward for successful capture"),
-    "reward_constants": (NOT_STATED, "d_danger is a constant"),
-    "evader_reward": ("f_c terms and r_e only", "if e_j is not in a collision or captured"),
-    "mix_queries": (
-        "every entity's state gives a query",
-        "each agent's original state is transformed into query, key, and value components",
-    ),
-    "backend": ("no simulator named", "Timestep 0.2 s"),
-    "episode": ("0.2 s steps, 200 s episodes", "Max Iteration Time Per Episode 200 s"),
-    "budget": ("10M time steps", "By conducting training for 10 million time steps"),
-    "seeds": (NOT_STATED, None),
-    "evaluation": (
-        "100 trials per pairing, no seed, no intervals",
-        "We perform 100 trials for each comparison",
-    ),
-    "per_evader_cost": ("n' / m' in the text", "It is calculated by dividing n' by m'"),
-    "mlp_other_scenes": (
-        "left out of Tables V, VI",
-        "the policy using MLP fails to adapt to the scale change",
-    ),
-}
 # The evaluations each table of docs/results.md is read from (globs under docs/data; its test,
 # tests/test_results_doc.py, reads Tables II-VI from the same).
 TABLES = {
@@ -100,22 +67,8 @@ class Args:
     """Where recipe.json, deviations.md, hyperparameters.md and compute.md go."""
 
 
-def paper(key: str) -> str:
-    """The paper's value of `key` with the words it comes from, as a table cell."""
-    value, says = PAPER[key]
-    return value if says is None else f'{value} ("{says}")'
-
-
 def num(x: float) -> str:
     return f"{x:g}"
-
-
-def rate(x: float) -> str:
-    """A step size as the code and the notes write it: 3e-3 (docs/results.md's number check,
-    tests/test_results_doc.py, reads decimals only; these rows are checked against the config
-    by tests/experiments/test_recipe.py)."""
-    mantissa, exponent = f"{x:.0e}".split("e")
-    return f"{mantissa}e{int(exponent)}"
 
 
 def read_json(path: Path) -> dict:
@@ -137,23 +90,8 @@ def recipe_differences(runs: dict[str, ExperimentConfig]) -> list[str]:
 
 
 def training_time(run: str) -> dict:
-    """Hours of training a run's curves record (the module doc gives the rule)."""
-    rows = [(int(r["env_steps"]), r["wall_time"]) for r in read_rows(RUNS / run / CURVES_FILE)]
-    times = [t for _, t in rows]
-    intervals = [b - a for a, b in itertools.pairwise(times)]
-    median = statistics.median(intervals)
-    pauses = [i for i in intervals if i > PAUSE_S]
-    counted = [i for i in intervals if i <= PAUSE_S]
-    return {
-        "env_steps": rows[-1][0],
-        "rows": len(rows),
-        "median_interval_s": round(median, 1),
-        "longest_counted_s": round(max(counted), 1),
-        "pauses": len(pauses),
-        "shortest_pause_s": round(min(pauses), 1) if pauses else None,
-        "paused_h": round(sum(pauses) / 3600, 2),
-        "hours": round((sum(counted) + median * len(pauses)) / 3600, 2),
-    }
+    """Hours of training the curves of train/runs/`run` record (the module doc gives the rule)."""
+    return curves.training_time(read_rows(RUNS / run / CURVES_FILE), PAUSE_S)
 
 
 def run_of(spec: str) -> str | None:
@@ -176,32 +114,12 @@ def run_of(spec: str) -> str | None:
     return run
 
 
-def provenance(metas: list[dict]) -> dict[str, int]:
-    """How many of a table's evaluations ran from a clean commit, from a work tree with
-    uncommitted changes, or before pe-mjx recorded its code version (`meta.code_version`)."""
-    counts = {"clean": 0, "dirty": 0, "not_recorded": 0}
-    for meta in metas:
-        version = meta.get("code_version")
-        counts[
-            "not_recorded" if version is None else "dirty" if version["git_dirty"] else "clean"
-        ] += 1
-    return counts
-
-
 def provenance_cell(counts: dict[str, int]) -> str:
     total = sum(counts.values())
     if counts["clean"] == total:
         return "clean commit"
     parts = {"clean": "clean commit", "dirty": "dirty tree", "not_recorded": "not recorded"}
     return ", ".join(f"{n} of {total} {parts[k]}" for k, n in counts.items() if n)
-
-
-def evaluation_seconds(results: dict) -> float:
-    """The wall time of the `pe-mjx evaluate` call that wrote `results` (`meta.seconds`) plus
-    the play time recorded with each pairing it kept from an earlier call (whose start-up is
-    not recorded)."""
-    kept = sum(p["seconds"] for p in results["pairings"] if p.get("kept"))
-    return results["meta"]["seconds"] + kept
 
 
 def compute() -> dict:
@@ -219,7 +137,7 @@ def compute() -> dict:
             "devices": sorted({d for m in metas for d in m["devices"]}),
             "runs": sorted({r for r in trained_by.values() if r}),
             "not_logged": sorted(Path(s).name for s, r in trained_by.items() if r is None),
-            "provenance": provenance(metas),
+            "provenance": code_provenance(metas),
         }
     used = sorted({r for t in tables.values() for r in t["runs"]})
     logged = sorted(path.parent.name for path in RUNS.glob(f"*/{CURVES_FILE}"))
@@ -276,11 +194,6 @@ def measurements() -> dict:
     }
 
 
-def team_learning_rate(config: ExperimentConfig, team: str) -> float:
-    rate = config.team(team).learning_rate
-    return config.ppo.learning_rate if rate is None else rate
-
-
 def episode_length(curve: dict) -> str:
     return f"{curve['first']:.1f} → {curve['last']:.1f} steps in {curve['last_step']:,} env steps"
 
@@ -303,16 +216,16 @@ def evader_rows(config: ExperimentConfig, diagnosis: dict) -> list[tuple[str, ..
     """The step size and the flee shaping that made the evaders learn, and the rewards."""
     reward = config.env.reward
     fast = diagnosis["flee_and_step"]["changed"]
-    fast_rate, fast_schedule = rate(fast["ppo.learning_rate"]), fast["ppo.lr_schedule"]
-    slow = rate(diagnosis["reference_learning_rate"])
+    fast_rate, fast_schedule = step_size(fast["ppo.learning_rate"]), fast["ppo.lr_schedule"]
+    slow = step_size(diagnosis["reference_learning_rate"])
     note = f"[evader diagnosis]({NOTES}/2026-12-01-evader-diagnosis.md)"
     flee = episode_length(diagnosis["flee"]["length"])
     return [
         (
             "Adam step size",
-            f"evaders {rate(team_learning_rate(config, 'evader'))}, "
-            f"pursuers {rate(team_learning_rate(config, 'pursuer'))}",
-            f"{paper('learning_rate')} ({slow}, this project's first default, is often read "
+            f"evaders {step_size(learning_rate(config, 'evader'))}, "
+            f"pursuers {step_size(learning_rate(config, 'pursuer'))}",
+            f"{says('learning_rate')} ({slow}, this project's first default, is often read "
             "as the paper's)",
             f"at {slow} the evaders' PPO updates barely moved their policy ({note})",
             "with the flee shaping, the eval episode length against the scripted pursuers: "
@@ -324,14 +237,14 @@ def evader_rows(config: ExperimentConfig, diagnosis: dict) -> list[tuple[str, ..
             "Evaders' flee shaping (`env.reward.evader_flee`)",
             f"{num(reward.evader_flee)} per metre gained from the nearest pursuer, up to "
             f"{num(reward.flee_range)} m; in training only",
-            paper("evader_reward"),
+            says("evader_reward"),
             f"a dense signal to run, with the larger step size ({note})",
             f"alone, at {slow}: {flee}, no gain; at {fast_rate} without it: not yet ablated",
         ),
         (
             "Capture reward r_s",
             f"{num(reward.capture)} per evader to its captor",
-            paper("capture"),
+            says("capture"),
             "it must outweigh shadowing an evader at d_cap over the discounted horizon; at 50 "
             f"the pursuers followed and did not capture ([design]({DOCS}/design.md))",
             "not yet ablated at the paper's scales (a 4-1-2 probe in docs/design.md, no data file)",
@@ -340,7 +253,7 @@ def evader_rows(config: ExperimentConfig, diagnosis: dict) -> list[tuple[str, ..
             "Other reward constants",
             f"r_c {num(reward.collision)}, d_danger {num(reward.danger_distance)} m, "
             f"d_cap {num(reward.capture_distance)} m, r_e {num(reward.evader_alive)}",
-            paper("reward_constants"),
+            says("reward_constants"),
             "the paper gives none; SPEC: values that train",
             "not yet ablated",
         ),
@@ -358,7 +271,7 @@ def training_rows(
         (
             "MIX queries (`mix_queries`)",
             f"`{config.pursuer.network.mix_queries}`: the agent's own token queries every token",
-            paper("mix_queries"),
+            says("mix_queries"),
             f"about 6x cheaper on this CPU, the same parameters ([design]({DOCS}/design.md))",
             "not yet ablated",
         ),
@@ -369,7 +282,7 @@ def training_rows(
             f"{num(ppo.clip_epsilon)}, GAE λ {num(ppo.gae_lambda)}, γ {num(ppo.gamma)}, step "
             f"size {ppo.lr_schedule} to 0; rewards x {num(config.pursuer.reward_scale)} "
             f"(pursuers), x {num(config.evader.reward_scale)} (evaders); Hyperparameters below",
-            paper("ppo"),
+            says("ppo"),
             "the paper gives none: common PPO values",
             "not yet ablated",
         ),
@@ -377,7 +290,7 @@ def training_rows(
             "Backend of the published numbers",
             f"{', '.join(sorted({c.backend for c in runs.values()}))} (exact unicycle arcs) in "
             f"every table; the code's default is {config.backend}",
-            paper("backend"),
+            says("backend"),
             "faster on this CPU: training by 14% at 20-5-8, evaluation several times "
             f"([benchmarks]({DOCS}/benchmarks.md))",
             f"{preset} learning test, one seed: the scripted pursuers catch "
@@ -387,21 +300,37 @@ def training_rows(
         (
             "Budget",
             f"{env_steps:,} env steps per co-evolution",
-            paper("budget"),
-            "CPU time (Compute below); 10M on MJX is in progress",
-            "3M vs 10M: not yet; 1M vs 3M: "
+            says("budget"),
+            "CPU time (Compute below); Table III at 10M on MJX is in progress",
+            f"{budget_effect()}; 1M vs 3M: "
             f"[notes of 2026-12-02]({NOTES}/2026-12-02-paper-tables.md)",
         ),
         (
             "Seeds",
             f"seed {', '.join(sorted({str(c.seed) for c in runs.values()}))} for every method "
             "and scale; MIX and MEAN also 1 and 2 at 20-5-8",
-            paper("seeds"),
+            says("seeds"),
             f"CPU time ([notes of 2026-12-03]({NOTES}/2026-12-03-seeds.md))",
             f"std over 3 seeds of a self-match's success at 20-5-8: {spread['mix']:.3f} (MIX), "
             f"{spread['mean']:.3f} (MEAN)",
         ),
     ]
+
+
+def budget_effect() -> str:
+    """3M against 10M where Table III has both: what the pursuers catch of E_MIX."""
+
+    def success(table: str) -> dict[str, float]:
+        pairings = read_json(DATA / TABLES[table][0] / "results.json")["pairings"]
+        return {
+            p["pursuer"]["label"].split("(")[0]: p["summary"]["success_rate"]
+            for p in pairings
+            if p["evader"]["label"].startswith("E_MIX")
+        }
+
+    three, ten = success("III"), success("III at 10M")
+    cells = [f"{p} {three[p]:.3f} → {ten[p]:.3f}" for p in sorted(ten) if p in three]
+    return "3M → 10M (Table III at 10M), the pursuers' success against E_MIX: " + ", ".join(cells)
 
 
 def evaluation_rows() -> list[tuple[str, ...]]:
@@ -419,93 +348,25 @@ def evaluation_rows() -> list[tuple[str, ...]]:
             "Evaluation",
             f"{trials[0]} trials per pairing, trial seed {seeds[0]}; success ± its 95% "
             "Student-t interval, per-evader cost [95% bootstrap interval]",
-            paper("evaluation"),
+            says("evaluation"),
             "the intervals show which differences the trials resolve",
             "not yet ablated (no other trial seed played)",
         ),
         (
             "Per-evader cost",
             "mean(m') / mean(n') over the trials",
-            paper("per_evader_cost"),
+            says("per_evader_cost"),
             "the paper's tables are the ratio of the means (SPEC 4)",
             "not an ablation: the definition the paper's tables match",
         ),
         (
             "MLP in another scene",
             "its input zero-padded or cut to its training counts (SPEC 3.1); rows marked *",
-            paper("mlp_other_scenes"),
+            says("mlp_other_scenes"),
             "every pairing of Tables V, VI played",
             "not an ablation: Tables V, VI's MLP* rows",
         ),
     ]
-
-
-def hyperparameters(config: ExperimentConfig, env_steps: int) -> list[dict]:
-    """Rows (setting, pursuers, evaders, paper): every co-evolution's settings (the defaults;
-    `recipe_differences` lists where a run departs from them), "same" where both teams share one."""
-    ppo, reward = config.ppo, config.env.reward
-    net = {team: config.team(team).network for team in ("pursuer", "evader")}  # in that order
-    iteration = ppo.num_envs * ppo.unroll_length
-    same = "same"
-    rows = [
-        ("Algorithm", "IPPO, one parameter set per team", same, paper("algorithm")),
-        (
-            "Encoder width / MIX heads; policy and value heads",
-            *(f"{n.width} / {n.num_heads}; 2 x {n.hidden}" for n in net.values()),
-            paper("network"),
-        ),
-        (
-            "Adam step size",
-            rate(team_learning_rate(config, "pursuer")),
-            rate(team_learning_rate(config, "evader")),
-            paper("learning_rate"),
-        ),
-        ("Step-size schedule", f"{ppo.lr_schedule} to 0 over the budget", same, paper("ppo")),
-        (
-            "Arenas x steps per iteration; epochs x minibatches",
-            f"{ppo.num_envs} x {ppo.unroll_length} ({iteration:,} env steps); "
-            f"{ppo.update_epochs} x {ppo.num_minibatches}",
-            same,
-            paper("ppo"),
-        ),
-        (
-            "Discount γ / GAE λ",
-            f"{num(ppo.gamma)} / {num(ppo.gae_lambda)}",
-            same,
-            paper("gamma"),
-        ),
-        (
-            "Clip / entropy / value / gradient norm",
-            f"{num(ppo.clip_epsilon)} / {num(ppo.entropy_coef)} / {num(ppo.value_coef)} / "
-            f"{num(ppo.max_grad_norm)}",
-            same,
-            paper("ppo"),
-        ),
-        (
-            "Reward scale before GAE",
-            num(config.pursuer.reward_scale),
-            num(config.evader.reward_scale),
-            paper("reward_scale"),
-        ),
-        (
-            "Rewards",
-            f"r_c {num(reward.collision)}, d_danger {num(reward.danger_distance)} m, f_p = "
-            f"{num(reward.pursuit_scale)} / max(d, {num(reward.capture_distance)} m), "
-            f"r_s {num(reward.capture)}",
-            f"r_c {num(reward.collision)}, d_danger {num(reward.danger_distance)} m, "
-            f"r_e {num(reward.evader_alive)}, flee {num(reward.evader_flee)} per m",
-            f"f_p's {paper('pursuit_scale')}; the other constants {NOT_STATED}",
-        ),
-        ("Budget", f"{env_steps:,} env steps", same, paper("budget")),
-        (
-            "Episode",
-            f"{config.env.max_steps} steps of {num(config.env.control_dt)} s",
-            same,
-            paper("episode"),
-        ),
-    ]
-    keys = ("setting", "pursuers", "evaders", "paper")
-    return [dict(zip(keys, row, strict=True)) for row in rows]
 
 
 def markdown(title: str, text: str, header: tuple[str, ...], rows: list[tuple]) -> str:
@@ -575,11 +436,11 @@ def build() -> dict:
     measured = measurements()
     return {
         "written_by": "python -m experiments.results.recipe",
-        "paper": {key: {"value": value, "says": says} for key, (value, says) in PAPER.items()},
+        "paper": {key: {"value": value, "says": words} for key, (value, words) in SETTINGS.items()},
         "defaults": {
             "preset": config.preset,
             "backend": config.backend,
-            "learning_rate": {t: team_learning_rate(config, t) for t in ("pursuer", "evader")},
+            "learning_rate": {t: learning_rate(config, t) for t in ("pursuer", "evader")},
             "reward_scale": {t: config.team(t).reward_scale for t in ("pursuer", "evader")},
             "network": config.pursuer.network.to_dict(),
             "ppo": dataclasses.asdict(config.ppo),

@@ -57,7 +57,7 @@ def run_ship(args: ShipArgs) -> None:
 
 def _ship_resumable(args: ShipArgs) -> None:
     from pe_mjx.policy.ship import check_name
-    from pe_mjx.ppo.checkpoint import write_resumable_copy
+    from pe_mjx.ppo.resumable import write_resumable_copy
 
     if args.dest is None:
         raise ValueError("--resumable needs --dest (e.g. --dest train/unfinished)")

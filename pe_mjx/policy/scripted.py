@@ -17,6 +17,7 @@ ever return actions whose ``action_mask`` entry is True.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -50,6 +51,35 @@ def _entities(
     vel = feats[:, 4:6] * max_speed
     active = valid & (feats[:, 0] < 0.5)
     return pos, vel, active
+
+
+class _Seen(NamedTuple):
+    """What one agent observes of the other agents, decoded by `_entities`: positions and
+    velocities [M, 2] in its heading frame, ``on`` (active) and ``valid`` bool [M], for its
+    teammates (M = T) and its opponents (M = O)."""
+
+    mate_pos: jax.Array
+    mate_vel: jax.Array
+    mate_on: jax.Array
+    mate_valid: jax.Array
+    opp_pos: jax.Array
+    opp_vel: jax.Array
+    opp_on: jax.Array
+    opp_valid: jax.Array
+
+
+def _seen(
+    mates: jax.Array,
+    mate_valid: jax.Array,
+    opps: jax.Array,
+    opp_valid: jax.Array,
+    arena_radius: float,
+    max_speed: float,
+) -> _Seen:
+    """`_entities` of the teammate rows ``[T, 6]`` and the opponent rows ``[O, 6]``."""
+    mate_pos, mate_vel, mate_on = _entities(mates, mate_valid, arena_radius, max_speed)
+    opp_pos, opp_vel, opp_on = _entities(opps, opp_valid, arena_radius, max_speed)
+    return _Seen(mate_pos, mate_vel, mate_on, mate_valid, opp_pos, opp_vel, opp_on, opp_valid)
 
 
 def _norm(v: jax.Array) -> jax.Array:
@@ -93,6 +123,38 @@ def _end_points(config: EnvConfig, team: str, times: np.ndarray) -> tuple[np.nda
 
 
 # ----------------------------------------------------------------------------- scripted pursuer
+
+
+def _assign_target(seen: _Seen, d_self: jax.Array, crowd_penalty: float) -> jax.Array:
+    """The evader a pursuer targets (int index into [O]): the lowest distance ``d_self [O]``
+    plus ``crowd_penalty`` per teammate beyond the quota that is closer to that evader."""
+    d_mates = _norm(seen.opp_pos[None, :, :] - seen.mate_pos[:, None, :])  # [T, O]
+    closer = jnp.sum(seen.mate_on[:, None] & (d_mates < d_self[None, :]), axis=0)  # [O]
+    n_pursuers = 1 + jnp.sum(seen.mate_on)
+    n_evaders = jnp.maximum(jnp.sum(seen.opp_on), 1)
+    quota = (n_pursuers + n_evaders - 1) // n_evaders
+    excess = jnp.maximum(closer - (quota - 1), 0)
+    score = jnp.where(seen.opp_on, d_self + crowd_penalty * excess, jnp.inf)
+    return jnp.argmin(score)
+
+
+def _intrusion(
+    ends: jax.Array, seen: _Seen, dt: float, r_self: float, r_opp: float, danger: float
+) -> jax.Array:
+    """How deep, in danger distances, each action's end point ``ends [n, 2]`` gets into the
+    danger zone of a teammate (moving, one step ahead) or of an incapacitated evader (staying
+    put): [n, T + O]."""
+    mate_next = jnp.where(seen.mate_on[:, None], seen.mate_pos + seen.mate_vel * dt, seen.mate_pos)
+    centres = jnp.concatenate([mate_next, seen.opp_pos], axis=0)
+    radii = jnp.concatenate(
+        [
+            jnp.full(seen.mate_pos.shape[:1], r_self + r_self),
+            jnp.full(seen.opp_pos.shape[:1], r_self + r_opp),
+        ]
+    )
+    repel = jnp.concatenate([seen.mate_valid, seen.opp_valid & ~seen.opp_on])
+    gaps = _gap(ends, centres, radii)  # [n, T + O]
+    return jnp.where(repel, jnp.maximum(danger - gaps, 0.0) / danger, 0.0)
 
 
 def scripted_pursuer(
@@ -146,39 +208,15 @@ def scripted_pursuer(
 
     def one(own, mates, mate_valid, opps, opp_valid, action_mask):
         del own
-        mate_pos, mate_vel, mate_on = _entities(mates, mate_valid, R, vmax)
-        opp_pos, opp_vel, opp_on = _entities(opps, opp_valid, R, vmax)
-
-        # 1. Assignment: distance to each evader plus a penalty per excess closer teammate.
-        d_self = _norm(opp_pos)  # [O]
-        d_mates = _norm(opp_pos[None, :, :] - mate_pos[:, None, :])  # [T, O]
-        closer = jnp.sum(mate_on[:, None] & (d_mates < d_self[None, :]), axis=0)  # [O]
-        n_pursuers = 1 + jnp.sum(mate_on)
-        n_evaders = jnp.maximum(jnp.sum(opp_on), 1)
-        quota = (n_pursuers + n_evaders - 1) // n_evaders
-        excess = jnp.maximum(closer - (quota - 1), 0)
-        score = jnp.where(opp_on, d_self + crowd * excess, jnp.inf)
-        target_id = jnp.argmin(score)
-        has_target = jnp.any(opp_on)
-
-        # 2. Pure pursuit to the led target point.
-        d_target = d_self[target_id]
-        lead = jnp.minimum(d_target / vmax, lead_time)
-        target = opp_pos[target_id] + opp_vel[target_id] * lead
+        seen = _seen(mates, mate_valid, opps, opp_valid, R, vmax)
+        d_self = _norm(seen.opp_pos)  # [O]
+        target_id = _assign_target(seen, d_self, crowd)
+        has_target = jnp.any(seen.opp_on)
+        # Pure pursuit to the target point, led by the target's velocity.
+        lead = jnp.minimum(d_self[target_id] / vmax, lead_time)
+        target = seen.opp_pos[target_id] + seen.opp_vel[target_id] * lead
         chase = _norm(ends - target)  # [n]
-
-        # Danger: moving teammates one step ahead; incapacitated agents of both teams stay put.
-        mate_next = jnp.where(mate_on[:, None], mate_pos + mate_vel * dt, mate_pos)
-        centres = jnp.concatenate([mate_next, opp_pos], axis=0)
-        radii = jnp.concatenate(
-            [
-                jnp.full(mate_pos.shape[:1], r_self + r_self),
-                jnp.full(opp_pos.shape[:1], r_self + r_opp),
-            ]
-        )
-        repel = jnp.concatenate([mate_valid, opp_valid & ~opp_on])
-        gaps = _gap(ends, centres, radii)  # [n, T + O]
-        intrusion = jnp.where(repel, jnp.maximum(danger - gaps, 0.0) / danger, 0.0)
+        intrusion = _intrusion(ends, seen, dt, r_self, r_opp, danger)
         cost = chase + danger_weight * jnp.sum(intrusion, axis=-1)
         cost = jnp.where(has_target, cost, stop_cost)
         return _masked_argmin(cost, action_mask)
@@ -187,6 +225,82 @@ def scripted_pursuer(
 
 
 # ----------------------------------------------------------------------------- scripted evader
+
+_FLOOR = 0.005
+"""Metres: every distance of the evader's potential is floored at this, so touching costs a lot
+but stays finite."""
+
+
+def _inverse(gap: jax.Array, power: float = 1.0) -> jax.Array:
+    return 1.0 / jnp.maximum(gap, _FLOOR) ** power
+
+
+class _Walls(NamedTuple):
+    """The static surroundings of one evader in its heading frame: the arena's centre [2] and
+    radius (metres), the obstacles' centres [K, 2], radii [K] and validity bool [K]."""
+
+    centre: jax.Array
+    radius: float
+    obst_pos: jax.Array
+    obst_radius: jax.Array
+    obst_valid: jax.Array
+
+
+def _walls(own: jax.Array, obst: jax.Array, obst_valid: jax.Array, arena_radius: float) -> _Walls:
+    """Decodes the wall from the own features ``own [5]`` (r_o, theta_o) and the obstacle rows
+    ``obst [K, 4]``."""
+    centre = own[1] * arena_radius * own[2:4]
+    obst_pos = obst[:, 0:1] * arena_radius * obst[:, 1:3]  # [K, 2]
+    obst_radius = obst[:, 3] * arena_radius
+    return _Walls(centre, arena_radius, obst_pos, obst_radius, obst_valid)
+
+
+class _Weights(NamedTuple):
+    """The scripted evader's potential: the pursuer term ``pursuer / d^pursuer_power``, the
+    weights of the ``w / gap`` terms (metres), and both teams' body radii (metres)."""
+
+    pursuer: float
+    pursuer_power: float
+    wall: float
+    obstacle: float
+    teammate: float
+    r_self: float
+    r_opp: float
+
+
+def _potential(
+    x: jax.Array,
+    opp_t: jax.Array,
+    mate_t: jax.Array,
+    reach_t: jax.Array,
+    seen: _Seen,
+    walls: _Walls,
+    w: _Weights,
+) -> jax.Array:
+    """The potential at every action's arc point ``x [n, 2]`` at one look-ahead time, with the
+    pursuers at ``opp_t [O, 2]`` (discs of radius ``reach_t``) and the teammates at
+    ``mate_t [T, 2]``: [n]."""
+    d_opp = _norm(x[:, None, :] - opp_t)  # [n, O]
+    chase = w.pursuer * _inverse(d_opp - reach_t, w.pursuer_power)
+    downed = w.teammate * _inverse(d_opp - w.r_self - w.r_opp)
+    opp_u = jnp.where(seen.opp_on, chase, jnp.where(seen.opp_valid, downed, 0.0))
+    mate_u = jnp.where(seen.mate_valid, w.teammate * _inverse(_gap(x, mate_t, 2 * w.r_self)), 0)
+    wall_gap = walls.radius - _norm(x - walls.centre) - w.r_self
+    obst_gap = _gap(x, walls.obst_pos, walls.obst_radius + w.r_self)
+    obst_u = jnp.where(walls.obst_valid, w.obstacle * _inverse(obst_gap), 0.0)
+    return (
+        jnp.sum(opp_u, -1) + jnp.sum(mate_u, -1) + jnp.sum(obst_u, -1) + w.wall * _inverse(wall_gap)
+    )
+
+
+def _unsafe(step_ends: jax.Array, seen: _Seen, dt: float, w: _Weights, margin: float) -> jax.Array:
+    """1e9 for each action whose next-step end point ``step_ends [n, 2]`` comes within
+    ``margin`` of a teammate (extrapolated by its velocity) or of a downed pursuer, else 0: [n]."""
+    mate_next = seen.mate_pos + jnp.where(seen.mate_on[:, None], seen.mate_vel, 0.0) * dt
+    mate_hit = jnp.any(seen.mate_valid & (_gap(step_ends, mate_next, 2 * w.r_self) <= margin), -1)
+    downed = seen.opp_valid & ~seen.opp_on
+    downed_hit = jnp.any(downed & (_gap(step_ends, seen.opp_pos, w.r_self + w.r_opp) <= margin), -1)
+    return (mate_hit | downed_hit).astype(jnp.float32) * 1e9
 
 
 def scripted_evader(
@@ -230,63 +344,39 @@ def scripted_evader(
     Returns:
       ``policy(obs, rng) -> int32 [E]`` (``rng`` is unused: the policy is deterministic).
     """
-    R = config.arena.radius
-    team = config.evader
-    vmax = team.max_speed
-    r_self, r_opp = team.radius, config.pursuer.radius
-    times = np.asarray(horizons, dtype=np.float64) * config.control_dt
+    R, vmax, dt = config.arena.radius, config.evader.max_speed, config.control_dt
+    weights = _Weights(
+        pursuer=pursuer_weight,
+        pursuer_power=pursuer_power,
+        wall=wall_weight,
+        obstacle=obstacle_weight,
+        teammate=teammate_weight,
+        r_self=config.evader.radius,
+        r_opp=config.pursuer.radius,
+    )
+    times = np.asarray(horizons, dtype=np.float64) * dt
     ends = jnp.asarray(_end_points(config, "evader", times)[0])  # [n, H, 2]
     t = jnp.asarray(times, dtype=jnp.float32)  # [H]
     reach = config.pursuer.max_speed * t if worst_case else jnp.zeros_like(t)  # [H]
     follow = 0.0 if worst_case else 1.0
-    floor = 0.005
-    dt = config.control_dt
     step_ends = jnp.asarray(_end_points(config, "evader", [dt])[0][:, 0])  # [n, 2]
-    margin = safety_margin
-
-    def inverse(gap, power=1.0):
-        return 1.0 / jnp.maximum(gap, floor) ** power
 
     def one(own, mates, mate_valid, opps, opp_valid, obst, obst_valid, action_mask):
-        mate_pos, mate_vel, mate_on = _entities(mates, mate_valid, R, vmax)
-        opp_pos, opp_vel, opp_on = _entities(opps, opp_valid, R, vmax)
-        centre = own[1] * R * own[2:4]
-        obst_pos = obst[:, 0:1] * R * obst[:, 1:3]  # [K, 2]
-        obst_radius = obst[:, 3] * R
-
+        seen = _seen(mates, mate_valid, opps, opp_valid, R, vmax)
+        walls = _walls(own, obst, obst_valid, R)
         # Agents at each look-ahead time: [H, M, 2]; the incapacitated ones stay where they are.
-        opp_vel = follow * jnp.where(opp_on[:, None], opp_vel, 0.0)
-        opp_at = opp_pos + opp_vel * t[:, None, None]
-        mate_at = mate_pos + jnp.where(mate_on[:, None], mate_vel, 0.0) * t[:, None, None]
+        opp_vel = follow * jnp.where(seen.opp_on[:, None], seen.opp_vel, 0.0)
+        opp_at = seen.opp_pos + opp_vel * t[:, None, None]
+        mate_vel = jnp.where(seen.mate_on[:, None], seen.mate_vel, 0.0)
+        mate_at = seen.mate_pos + mate_vel * t[:, None, None]
 
         def at_time(x, opp_t, mate_t, reach_t):  # x [n, 2]: every action's arc point at one time
-            d_opp = _norm(x[:, None, :] - opp_t)  # [n, O]
-            chase = pursuer_weight * inverse(d_opp - reach_t, pursuer_power)
-            downed = teammate_weight * inverse(d_opp - r_self - r_opp)
-            opp_u = jnp.where(opp_on, chase, jnp.where(opp_valid, downed, 0.0))
-            mate_u = jnp.where(
-                mate_valid, teammate_weight * inverse(_gap(x, mate_t, 2 * r_self)), 0
-            )
-            wall_gap = R - _norm(x - centre) - r_self
-            obst_gap = _gap(x, obst_pos, obst_radius + r_self)
-            obst_u = jnp.where(obst_valid, obstacle_weight * inverse(obst_gap), 0.0)
-            return (
-                jnp.sum(opp_u, -1)
-                + jnp.sum(mate_u, -1)
-                + jnp.sum(obst_u, -1)
-                + wall_weight * inverse(wall_gap)
-            )
+            return _potential(x, opp_t, mate_t, reach_t, seen, walls, weights)
 
         potential = jax.vmap(at_time, in_axes=(1, 0, 0, 0))(ends, opp_at, mate_at, reach)
-        # Next step: never end within `safety_margin` of a teammate (extrapolated by its velocity)
-        # or of a downed pursuer; the potential alone can be swamped by the pursuer terms.
-        step_end = step_ends  # [n, 2]
-        mate_next = mate_pos + jnp.where(mate_on[:, None], mate_vel, 0.0) * dt
-        mate_hit = jnp.any(mate_valid & (_gap(step_end, mate_next, 2 * r_self) <= margin), -1)
-        downed_hit = jnp.any(
-            opp_valid & ~opp_on & (_gap(step_end, opp_pos, r_self + r_opp) <= margin), -1
-        )
-        unsafe = (mate_hit | downed_hit).astype(jnp.float32) * 1e9
+        # The potential alone can be swamped by the pursuer terms: never end the next step
+        # within `safety_margin` of a teammate or a downed pursuer.
+        unsafe = _unsafe(step_ends, seen, dt, weights, safety_margin)
         return _masked_argmin(jnp.sum(potential, axis=0) + unsafe, action_mask)
 
     fields = ("own", "teammates", "teammate_mask", "opponents", "opponent_mask")

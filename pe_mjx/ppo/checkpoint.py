@@ -15,12 +15,9 @@ A latest checkpoint damaged after the fact (a truncated or altered file) is one
 ones to `RUN/damaged-checkpoints/<step>` (kept, not deleted: the run's next saves reuse their
 step numbers).
 
-A *resumable copy* (`write_resumable_copy`, `pe-mjx ship RUN NAME --resumable`) is what a run in
-progress commits to git between sessions: its config, curves and one checkpoint holding only the
-learners (parameters, optimiser and normaliser state), the RNG and the counters, without the
-arenas in flight (about 60% of a train state at 20-5-8) or the policy items. `--resume` on it
-continues exactly for the learners and draws the arenas afresh (a warning line says so): the
-episodes in flight at the cut are lost, nothing that was learned.
+A *resumable copy* (`pe_mjx.ppo.resumable` writes it) holds the learners of one checkpoint
+without the arenas in flight; `--resume` on it restores the learners exactly and draws the arenas
+afresh, with a warning line.
 """
 
 from __future__ import annotations
@@ -29,7 +26,6 @@ import contextlib
 import logging
 import math
 import os
-import shutil
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -39,7 +35,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from pe_mjx import interrupts, outputs
+from pe_mjx import interrupts
 from pe_mjx.names import TEAMS
 from pe_mjx.policy.quiet import quiet_logs
 from pe_mjx.policy.shipped import resolve_run
@@ -58,7 +54,6 @@ from pe_mjx.policy.store import (
     read_meta,
     short_error,
 )
-from pe_mjx.ppo.curves import CURVES_FILE
 from pe_mjx.ppo.distributed import barrier, is_lost_process_error, is_primary
 from pe_mjx.ppo.train import Trainer, TrainState
 
@@ -263,8 +258,8 @@ def _with_fresh_arenas(trainer: Trainer, learners: tuple[Any, ...]) -> Any:
 
 
 def _restore_resumable_copy(run_dir: Path, step: int, trainer: Trainer, abstract: Any) -> Any:
-    """Checkpoint `step` of a resumable copy (`write_resumable_copy`): its learners, RNG and
-    counters, with freshly drawn arenas."""
+    """Checkpoint `step` of a resumable copy (`pe_mjx.ppo.resumable.write_resumable_copy`): its
+    learners, RNG and counters, with freshly drawn arenas."""
     target = _learners(abstract)
     try:
         with quiet_logs(), manager(run_dir, create=False) as mngr:
@@ -459,54 +454,32 @@ def resume_intact(run_dir: str | Path) -> int:
     return step
 
 
-def write_resumable_copy(
-    run_dir: str | Path, target: str | Path, step: int | None = None, replace: bool = False
-) -> dict[str, Any]:
-    """Writes `target`, the copy of run `run_dir` to commit while it is in progress: its
-    `config.json` and curves, and checkpoint `step` (default: the latest) with the learners,
-    RNG and counters only (module docstring). `pe-mjx train --resume TARGET` (or a copy of it
-    back under `runs/`) continues the run. Built beside `target` and renamed once; returns the
-    checkpoint's metadata. A `ValueError` (an existing target without `replace`) or a
-    `CheckpointError` before anything is written."""
-    from pe_mjx.experiment import ExperimentConfig
-
-    run_dir, target = Path(run_dir), Path(target)
-    if target.exists() and not target.is_dir():
-        raise ValueError(f"{target} exists and is not a directory: refused")
-    if target.exists() and not replace:
-        raise ValueError(f"{target} exists (--replace to replace it)")
-    source, dest = run_dir.resolve(), target.resolve()
-    if dest == source or dest in source.parents or source in dest.parents:
-        raise ValueError(f"{target} holds the run or lies inside it: choose another --dest")
+def resumable_meta(run_dir: Path, step: int | None = None) -> dict[str, Any]:
+    """The metadata of checkpoint `step` (default: the latest) of `run_dir`; a `CheckpointError`
+    when the run cannot be resumed from it (made by an older pe-mjx, or policies only)."""
     meta = read_meta(run_dir, step)
-    step = meta["step"]
     if meta["format_version"] < 2:
         raise CheckpointError(f"{run_dir} was made by an older pe-mjx: it cannot be resumed")
-    _require_train_item(run_dir, step)
-    if not (run_dir / "config.json").is_file():
-        raise CheckpointError(f"{run_dir} has no config.json: it is not a training run")
-    trainer = _shape_trainer(ExperimentConfig.from_dict(meta["experiment"]))
-    state = _restore_step(
-        run_dir, step, trainer, jax.eval_shape(keys_to_data, trainer.abstract_state())
-    )
-    saved_meta = {k: v for k, v in meta.items() if k != "step"} | {RESUMABLE_COPY: True}
-    target.parent.mkdir(parents=True, exist_ok=True)
-    outputs.clean_stale(target.parent)  # the temporaries of copies killed midway
-    stage = outputs.temp_path(target, keep_suffix=False)
-    stage.mkdir()
-    try:
-        for name in ("config.json", CURVES_FILE):
-            if (run_dir / name).is_file():
-                shutil.copy2(run_dir / name, stage / name)
-        with quiet_logs(), manager(stage, create=True) as mngr:
-            _save_items(mngr, step, _flat(_learners(state)), saved_meta)
-        if target.exists():  # replace
-            shutil.rmtree(target)
-        os.replace(stage, target)
-    except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        raise
+    _require_train_item(run_dir, meta["step"])
     return meta
+
+
+def read_host_state(run_dir: Path, meta: dict[str, Any]) -> Any:
+    """The train state of the checkpoint that `meta` (`resumable_meta`) describes, as host
+    arrays with RNG keys as key data."""
+    from pe_mjx.experiment import ExperimentConfig
+
+    trainer = _shape_trainer(ExperimentConfig.from_dict(meta["experiment"]))
+    abstract = jax.eval_shape(keys_to_data, trainer.abstract_state())
+    return _restore_step(run_dir, meta["step"], trainer, abstract)
+
+
+def save_learners(directory: Path, state: Any, meta: dict[str, Any]) -> None:
+    """Writes checkpoint `meta["step"]` of a resumable copy under `directory`: the learners, RNG
+    and counters of `state` (`read_host_state`), and `meta` marked as a copy's."""
+    saved_meta = {k: v for k, v in meta.items() if k != "step"} | {RESUMABLE_COPY: True}
+    with quiet_logs(), manager(directory, create=True) as mngr:
+        _save_items(mngr, meta["step"], _flat(_learners(state)), saved_meta)
 
 
 def _shape_trainer(config: Any) -> Trainer:

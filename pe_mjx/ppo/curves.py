@@ -20,15 +20,21 @@ import contextlib
 import csv
 import gzip
 import io
+import itertools
 import math
 import os
+import statistics
 import time
 from pathlib import Path
+from typing import Any
 
 CURVES_FILE = "curves.csv.gz"
 MAX_BYTES = 64 << 20
 """Largest decompressed curves file read (a 10M-step run's is about 2 MB)."""
 MAX_COLUMNS = 10_000
+PAUSE_S = 600
+"""An interval between two rows longer than this (seconds) is a pause between resumed chunks
+(`training_time`)."""
 
 
 class CurvesError(ValueError):
@@ -66,7 +72,15 @@ def read_rows(path: str | Path) -> list[dict[str, float]]:
             if len(cells) != len(header):
                 raise CurvesError(f"{path}: line {line} has {len(cells)} cells, not {len(header)}")
             row = {k: float(v) for k, v in zip(header, cells, strict=True) if v != ""}
-            row["env_steps"] = int(row["env_steps"])
+            # The writer leaves a non-finite value's cell empty (`_cell`): nan, inf or a
+            # fractional or negative step count is a damaged file (1e400 steps was a traceback).
+            bad = next((k for k, v in row.items() if not math.isfinite(v)), None)
+            if bad is not None:
+                raise CurvesError(f"{path}: line {line}: {bad} is {row[bad]}, not a finite number")
+            steps = row["env_steps"]
+            if not 0 <= steps < 2**63 or steps != int(steps):  # an int64 counter
+                raise CurvesError(f"{path}: line {line}: env_steps is {steps:g}, not a step count")
+            row["env_steps"] = int(steps)
             rows.append(row)
     except (ValueError, KeyError, csv.Error) as err:
         if isinstance(err, CurvesError):
@@ -84,6 +98,32 @@ def scalars(rows: list[dict[str, float]]) -> dict[str, list[tuple[int, float]]]:
             if tag not in ("env_steps", "wall_time"):
                 out.setdefault(tag, []).append((step, value))
     return {tag: sorted(points) for tag, points in out.items()}
+
+
+def training_time(rows: list[dict[str, float]], pause_s: float = PAUSE_S) -> dict[str, Any]:
+    """Hours of training that a run's rows record, by their wall clock (`wall_time`).
+
+    A run resumed several times has pauses between its chunks, so its time is the sum of the
+    intervals between consecutive rows, where an interval longer than `pause_s` (10 minutes: an
+    evaluation or a restart inside a chunk takes a few minutes at most; the result gives the
+    longest interval counted and the shortest pause) is a pause and counts as one median
+    interval of the run (the iteration that ended it). The start-up before the first row is not
+    logged and not counted."""
+    times = [r["wall_time"] for r in rows]
+    intervals = [b - a for a, b in itertools.pairwise(times)]
+    median = statistics.median(intervals)
+    pauses = [i for i in intervals if i > pause_s]
+    counted = [i for i in intervals if i <= pause_s]
+    return {
+        "env_steps": int(rows[-1]["env_steps"]),
+        "rows": len(rows),
+        "median_interval_s": round(median, 1),
+        "longest_counted_s": round(max(counted), 1),
+        "pauses": len(pauses),
+        "shortest_pause_s": round(min(pauses), 1) if pauses else None,
+        "paused_h": round(sum(pauses) / 3600, 2),
+        "hours": round((sum(counted) + median * len(pauses)) / 3600, 2),
+    }
 
 
 def write_rows(path: str | Path, rows: list[dict[str, float]]) -> None:

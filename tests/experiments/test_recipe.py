@@ -8,7 +8,9 @@ import json
 import subprocess
 import sys
 
+from pe_mjx.eval_reports import code_provenance
 from pe_mjx.experiment import default_config
+from pe_mjx.paper import SETTINGS, hyperparameters
 from tests.tool_modules import ROOT, load_experiment
 
 RECIPE = ROOT / "docs" / "data" / "recipe"
@@ -33,9 +35,8 @@ def test_the_committed_files_are_what_the_script_writes(tmp_path):
 
 
 def test_every_deviation_names_ours_and_the_papers_value():
-    module = _load()
     data = json.loads((RECIPE / "recipe.json").read_text())
-    values = {value for value, _ in module.PAPER.values()}
+    values = {value for value, _ in SETTINGS.values()}
     rows = [r for r in (RECIPE / "deviations.md").read_text().splitlines() if r.startswith("| ")]
     assert len(data["deviations"]) >= 12
     assert len(rows) == len(data["deviations"]) + 1  # and the header
@@ -43,16 +44,15 @@ def test_every_deviation_names_ours_and_the_papers_value():
         assert all(deviation[key].strip() for key in ("what", "ours", "paper", "why", "measured"))
         assert any(deviation["paper"].startswith(value) for value in values), deviation
         assert row.split(" | ")[1:3] == [deviation["ours"], deviation["paper"]]
-    for key, (value, says) in module.PAPER.items():
+    for key, (value, says) in SETTINGS.items():
         assert value and (says is None or says.strip()), key
 
 
 def test_the_tables_follow_the_config():
-    module = _load()
     config = default_config("20-5-8").override(
         {"evader.learning_rate": 5e-4, "ppo.gamma": 0.9, "env.reward.capture": 70.0}
     )
-    rows = {r["setting"]: r for r in module.hyperparameters(config, env_steps=4096)}
+    rows = {r["setting"]: r for r in hyperparameters(config, env_steps=4096)}
     step = rows["Adam step size"]
     assert (step["pursuers"], step["evaders"]) == ("1e-3", "5e-4")
     assert rows["Discount γ / GAE λ"]["pursuers"] == "0.9 / 0.95"
@@ -86,10 +86,10 @@ def test_provenance_counts_each_reports_code_version():
     recipe = _load()
     clean = {"code_version": {"git_commit": "a" * 40, "git_dirty": False}}
     dirty = {"code_version": {"git_commit": "b" * 40, "git_dirty": True}}
-    counts = recipe.provenance([clean, dirty, dirty, {}])
+    counts = code_provenance([clean, dirty, dirty, {}])
     assert counts == {"clean": 1, "dirty": 2, "not_recorded": 1}
     assert (
         recipe.provenance_cell(counts)
         == "1 of 4 clean commit, 2 of 4 dirty tree, 1 of 4 not recorded"
     )
-    assert recipe.provenance_cell(recipe.provenance([clean, clean])) == "clean commit"
+    assert recipe.provenance_cell(code_provenance([clean, clean])) == "clean commit"
