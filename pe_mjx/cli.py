@@ -23,7 +23,7 @@ import tyro
 
 from pe_mjx import interrupts, outputs, sizes
 from pe_mjx.commands.common import check_backend as _check_backend
-from pe_mjx.commands.common import check_new_file
+from pe_mjx.commands.common import check_jax_platforms, check_new_file, never_unencodable, printable
 from pe_mjx.commands.common import check_preset as _check_preset
 from pe_mjx.commands.common import check_seed as _check_seed
 from pe_mjx.commands.common import check_writable_dir as _check_writable_dir
@@ -281,11 +281,11 @@ def run_train(args: TrainArgs) -> None:
                 viewer.stop()
     except CheckpointWriteError as err:
         # orbax may have left threads waiting forever: end without waiting for them
-        interrupts.exit_now(f"pe-mjx: error: {err}", 2)
+        interrupts.exit_now(f"pe-mjx: error: {printable(str(err))}", 2)
     except ProcessLostError as err:
         # jax's own exit would wait for the lost process (the group's shutdown barrier), then
         # abort: the checkpoints are on disk, end now.
-        interrupts.exit_now(f"pe-mjx: error: {err}", 1)
+        interrupts.exit_now(f"pe-mjx: error: {printable(str(err))}", 1)
     except KeyboardInterrupt:
         # Everything worth keeping is on disk by now: checkpoints are written with interrupts
         # held back, and `train` closed its loggers while unwinding. The interpreter's own exit
@@ -478,6 +478,8 @@ def main(argv: list[str] | None = None) -> None:
         "rate": (RateArgs, run_rate),
     }
     argv = sys.argv[1:] if argv is None else list(argv)
+    never_unencodable(sys.stdout)
+    never_unencodable(sys.stderr)
     if argv == ["--version"]:
         from importlib.metadata import PackageNotFoundError, version
 
@@ -493,10 +495,13 @@ def main(argv: list[str] | None = None) -> None:
         "train": (TrainArgs, train_defaults),
         "evaluate": (EvaluateArgs, evaluate_defaults),
     }
+    asks_help = bool({"-h", "--help"} & set(argv))
+    if argv[:1] and argv[0] in commands and argv[0] not in ("rate", "plot") and not asks_help:
+        if argv[0] == "train":
+            join_group(argv[1:])  # before a --resume's checkpoint is read (orbax asks JAX)
+        check_jax_platforms()  # after joining: asking JAX for devices first breaks the join
     if argv[:1] and argv[0] in with_defaults:
         cls, defaults = with_defaults[argv[0]]
-        if argv[0] == "train" and not {"-h", "--help"} & set(argv):
-            join_group(argv[1:])  # before a --resume's checkpoint is read (orbax asks JAX)
         try:
             default = defaults(argv[1:])
         except ValueError as err:

@@ -442,10 +442,9 @@ PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 
 def get_preset(name: str) -> EnvConfig:
     """Looks up a named preset; unknown names raise ValueError listing the known ones."""
-    try:
+    if isinstance(name, str) and name in PRESETS:  # a list was "unhashable type"
         return PRESETS[name]
-    except KeyError:
-        raise ValueError(f"unknown preset {name!r}; known presets: {', '.join(PRESETS)}") from None
+    raise ValueError(f"unknown preset {name!r}; known presets: {', '.join(PRESETS)}")
 
 
 def scene_by_counts(name: str) -> EnvConfig:

@@ -332,5 +332,10 @@ class AutoResetWrapper:
 
 def make(name_or_config: str | EnvConfig = "20-5-8", backend: str = "mjx") -> PursuitEvasionEnv:
     """Builds an env from a preset name or an `EnvConfig`."""
-    config = get_preset(name_or_config) if isinstance(name_or_config, str) else name_or_config
-    return PursuitEvasionEnv(config, backend=backend)
+    if isinstance(name_or_config, str):
+        return PursuitEvasionEnv(get_preset(name_or_config), backend=backend)
+    if not isinstance(name_or_config, EnvConfig):  # None failed deep inside with AttributeError
+        raise TypeError(
+            f"make() takes a preset name or an EnvConfig, got {type(name_or_config).__name__}"
+        )
+    return PursuitEvasionEnv(name_or_config, backend=backend)

@@ -24,12 +24,12 @@ Kept free of JAX and flax imports so that the CLI builds its flags cheaply.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 from typing import Any, Literal
 
 from pe_mjx.config import PRESETS, EnvConfig, check_finite, from_dict, get_preset, merge, to_dict
+from pe_mjx.config_files import read_tree
 from pe_mjx.names import BACKENDS, BUILTIN_POLICIES, ENCODERS, TEAMS, other_team
 
 Encoder = Literal["mix", "mean", "birnn", "mlp"]
@@ -426,41 +426,12 @@ def default_config(preset: str = "20-5-8") -> ExperimentConfig:
     return ExperimentConfig(env=training_env(preset))
 
 
-MAX_CONFIG_BYTES = 1_000_000
-
-
-def _read_tree(path: Path) -> dict[str, Any]:
-    """The object a JSON or YAML config file holds (ValueError naming `--config` and the file).
-    A run directory's `config.json` gives its experiment tree. The size is checked before the
-    file is read."""
-    from pe_mjx import outputs
-
-    # At most MAX_CONFIG_BYTES + 1 bytes are read, whatever the file is: a size from stat()
-    # held nothing back for /dev/zero or a pipe, which were read forever.
-    text = outputs.read_text(path, MAX_CONFIG_BYTES, flag="--config")
-    try:
-        if path.suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
-            data = yaml.safe_load(text)
-        else:
-            data = json.loads(text)
-    except Exception as err:  # json/yaml parse errors
-        first = str(err).splitlines()[0] if str(err) else err.__class__.__name__
-        raise ValueError(f"--config {path}: not valid JSON/YAML: {first}") from None
-    if isinstance(data, dict) and "experiment" in data:
-        data = data["experiment"]
-    if not isinstance(data, dict):
-        raise ValueError(f"--config {path}: must hold an object (a config tree)")
-    return data
-
-
 def read_env_file(path: str | Path, preset: str | None = None) -> EnvConfig:
     """A scene from a JSON or YAML file, whole or partial over a preset's (the file's `name`,
     else `preset`, else 20-5-8): an env tree, or an experiment tree or a run's `config.json`,
     whose `env` is taken."""
     path = Path(path)
-    data = _read_tree(path)
+    data = read_tree(path)
     if isinstance(data.get("env"), dict):
         data = data["env"]
     name = data.get("name")
@@ -476,9 +447,10 @@ def read_config_file(path: str | Path, preset: str | None = None) -> ExperimentC
     defaults (the file's `env.name`, else `preset`, else 20-5-8). A run directory's `config.json`
     (which holds the tree under "experiment") is accepted as it is."""
     path = Path(path)
-    data = _read_tree(path)
+    data = read_tree(path)
     env_name = data.get("env", {}).get("name") if isinstance(data.get("env"), dict) else None
-    base_preset = env_name if env_name in PRESETS else (preset or "20-5-8")
+    known = isinstance(env_name, str) and env_name in PRESETS  # a list there is its own error
+    base_preset = env_name if known else (preset or "20-5-8")
     try:
         return ExperimentConfig.from_dict(merge(default_config(base_preset).to_dict(), data))
     except ValueError as err:

@@ -18,6 +18,11 @@ ENCODERS = ("mix", "mean", "birnn", "mlp")
 BUILTIN_POLICIES = ("scripted", "random")
 """Policy specs that need no checkpoint (`pe_mjx.policy.scripted.POLICIES`)."""
 
+PARK_DISTANCE = 10.0
+"""Absent agents and obstacles wait this many arena radii from the centre, one metre apart: far
+beyond every distance a rule looks at (collisions, rewards, action masks), and masked out of
+every observation (`pe_mjx.stages.placement`)."""
+
 # Observation layout (SPEC 2.5): one feature vector per entity, per observing agent.
 OWN_FEATURES = 5
 AGENT_FEATURES = 6
@@ -93,6 +98,7 @@ __all__ = [
     "OBSTACLE_FEATURES",
     "OPPONENT",
     "OWN_FEATURES",
+    "PARK_DISTANCE",
     "PURSUER_TERMS",
     "REWARD_TERMS",
     "TEAMMATE",

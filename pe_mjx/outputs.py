@@ -64,7 +64,8 @@ def check_target(
     """`path` as a target that may be written (an `OutputError` naming `flag` and the path if
     not): it does not exist, or is a regular file (a directory, for `directory`) and `force`.
     Its parent directory must exist. Symbolic links are followed for the check; the link itself
-    is what gets replaced."""
+    is what gets replaced. A link to nothing counts as an existing file (replaced only with
+    `force`) and is never a directory output."""
     path = Path(path)
     label = _label(path, flag)
     try:
@@ -73,6 +74,13 @@ def check_target(
         mode = None
     except OSError as err:
         raise OutputError(f"{label}: cannot be written: {err.strerror or err}") from None
+    # A link to nothing: an evaluation ran to its end, then could not rename its results over
+    # it, and they were lost.
+    if mode is None and os.path.islink(path) and (directory or not force):
+        raise OutputError(
+            f"{label} is a symbolic link to {os.readlink(path)}, which does not exist; "
+            "remove the link or give another path"
+        )
     if mode is not None:
         if directory and not stat.S_ISDIR(mode):
             what = "a file" if stat.S_ISREG(mode) else _kind(mode)

@@ -27,6 +27,10 @@ RETURNS = {
 """Per-team episodic-return tags (mean per agent) and their legend labels."""
 
 
+MAX_EVENTS_BYTES = 256 << 20
+"""Largest TensorBoard events file read (a 10M-step run's scalars take tens of MB)."""
+
+
 def read_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
     """tag -> [(env_steps, value)] of a run: from its compact curves (`curves.csv.gz`), or, for
     a run written before those existed, from its TensorBoard events under `run_dir/tb`.
@@ -49,19 +53,27 @@ def read_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
 def _tensorboard_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
     """tag -> [(env_steps, value)] from every event file under `run_dir/tb` (TFRecord framing);
     a record cut by a kill ends the file's reading."""
+    from google.protobuf.message import DecodeError
     from tensorboardX.proto import event_pb2
 
     scalars: dict[str, list[tuple[int, float]]] = defaultdict(list)
     for path in sorted((Path(run_dir) / "tb").glob("events.out.tfevents.*")):
-        data = path.read_bytes()
+        # Capped: an events file linked to /dev/zero was read until memory ran out (a FIFO
+        # reads as empty instead of waiting for a writer).
+        data = outputs.read_bytes(path, MAX_EVENTS_BYTES)
         pos = 0
         while pos + 12 <= len(data):
             (length,) = struct.unpack("<Q", data[pos : pos + 8])
             record = data[pos + 12 : pos + 12 + length]
-            pos += 12 + length + 4
             if len(record) < length:
                 break
-            event = event_pb2.Event.FromString(record)
+            try:
+                event = event_pb2.Event.FromString(record)
+            except DecodeError:
+                raise curves.CurvesError(
+                    f"{path}: not a TensorBoard event file (a damaged record at byte {pos})"
+                ) from None
+            pos += 12 + length + 4
             for value in event.summary.value:
                 scalars[value.tag].append((event.step, value.simple_value))
     return {k: sorted(v) for k, v in scalars.items()}

@@ -13,6 +13,7 @@ Standard library only (the lowest layer).
 
 from __future__ import annotations
 
+import math
 import os
 import reprlib
 from typing import Any
@@ -22,13 +23,22 @@ FLOAT_BYTES = 4
 
 
 def available_memory() -> int | None:
-    """Bytes of memory available to a new allocation (None: unknown)."""
+    """Bytes of memory available to a new allocation (None: unknown); a `SizeError` if
+    `PE_MJX_MEMORY_BYTES` states something that is not a number of bytes."""
     stated = os.environ.get("PE_MJX_MEMORY_BYTES")
-    if stated:
+    if stated is not None and stated.strip():
         try:
-            return max(0, int(float(stated)))
+            number = float(stated)
         except ValueError:
-            pass
+            number = math.nan
+        # A typo was ignored (and the machine's own memory used), "inf" was a traceback and
+        # "-5" blamed the flag whose size then did not fit in 0 bytes.
+        if not (math.isfinite(number) and number >= 1):
+            raise SizeError(
+                f"PE_MJX_MEMORY_BYTES must be a positive number of bytes (e.g. 64e9), got "
+                f"{shorten(stated, 40)}; unset it to use this machine's memory"
+            )
+        return int(number)
     try:
         with open("/proc/meminfo", "rb") as f:
             for line in f.read(1 << 16).decode(errors="replace").splitlines():

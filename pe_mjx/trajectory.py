@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from pe_mjx.config import EnvConfig
-from pe_mjx.names import NUM_CAUSES
+from pe_mjx.names import NUM_CAUSES, PARK_DISTANCE
 
 FORMAT_VERSION = 1
 REQUIRED_KEYS = ("format", "config_json", "poses", "active", "obstacles")
@@ -173,6 +173,21 @@ def _validate(
     _check_array(where, "obstacles", obstacles, (b, k, 3), "f")
     if not np.all(np.isfinite(obstacles)):
         _fail(where, "obstacles", "holds NaN or infinite values")
+    # Every position lies in the arena, or where absent agents and obstacles wait (beyond it):
+    # a crafted position far outside drew an empty arena without a word.
+    reach = _reach(config)
+    for key, xy in (("poses", poses[..., :2]), ("obstacles", obstacles[..., :2])):
+        far = np.abs(xy).max(initial=0.0)
+        if far > reach:
+            radius = config.arena.radius
+            _fail(
+                where,
+                key,
+                f"holds a position {far:.3g} m from the centre, beyond the {reach:g} m that an "
+                f"arena of radius {radius:g} m can record",
+            )
+    if obstacles.size and obstacles[..., 2].min() < 0:
+        _fail(where, "obstacles", "holds a negative radius")
     if cause is not None:
         _check_array(where, "cause", cause, (t, b, n), "i")
         if cause.size and (cause.min() < 0 or cause.max() >= NUM_CAUSES):
@@ -182,6 +197,13 @@ def _validate(
     _check_rules(where, poses, active, cause)
     if not isinstance(meta, dict):
         _fail(where, "meta", f"must be a dict, got {type(meta).__name__}")
+
+
+def _reach(config: EnvConfig) -> float:
+    """The farthest |x| or |y| a recorded position may have: the arena, or the row where the env
+    parks absent agents and obstacles (`PARK_DISTANCE` radii out, one metre apart)."""
+    radius = config.arena.radius
+    return (PARK_DISTANCE + 1) * radius + config.num_agents + config.arena.num_obstacles
 
 
 def _first(mask: np.ndarray) -> str:
@@ -244,6 +266,8 @@ def _json_scalar(where: str, key: str, x: np.ndarray) -> Any:
         return json.loads(str(x))
     except json.JSONDecodeError as err:
         _fail(where, key, f"is not valid JSON: {err}")
+    except RecursionError:  # `[[[[...` ten thousand deep: a crafted file
+        _fail(where, key, "is JSON nested too deeply to read")
 
 
 def _brief(err: BaseException) -> str:

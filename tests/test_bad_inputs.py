@@ -5,6 +5,7 @@ before anything is compiled; the test prints "N tried, N clear errors" for the C
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import shutil
@@ -17,6 +18,7 @@ import pytest
 from pe_mjx.cli import main
 from pe_mjx.ppo.checkpoint import lock_run
 from tests.policy_copies import orbax_copy
+from tests.ratings.test_board import TABLE_III
 
 BIG = str(2**63)
 HUGE = str(2**64)
@@ -149,7 +151,63 @@ def world(tmp_path_factory) -> Path:
         pass
     with zipfile.ZipFile(replays / "junkzip.npz", "w") as z:
         z.writestr("pos.npy", b"\x93NUMPY junk")
+    _crafted_inputs(root, shipped)
     return root
+
+
+def _crafted_inputs(root: Path, shipped: Path) -> None:
+    """Files of a careless or hostile user: odd names, links to nothing, keys given twice,
+    crafted replays, curves and results, a pipe where a file should be."""
+    import numpy as np
+
+    from tests.test_trajectory import make, raw
+
+    (root / "new\nline.xml").write_text("precious")
+    (root / "dangling").symlink_to(root / "missing-target")
+    (root / "loop-a").symlink_to(root / "loop-b")
+    (root / "loop-b").symlink_to(root / "loop-a")
+    configs = root / "configs"
+    (configs / "dup.yaml").write_text("ppo:\n  num_envs: 8\nppo:\n  gamma: 0.5\n")
+    (configs / "dup.json").write_text('{"ppo": {"num_envs": 8}, "ppo": {"gamma": 0.5}}')
+    (configs / "name_list.json").write_text('{"env": {"name": ["2-1-1"]}}')
+    replays = root / "replays"
+    deep = raw(make())
+    deep["config_json"] = np.asarray("[" * 100_000 + "]" * 100_000)
+    np.savez(replays / "deep_json.npz", **deep)
+    far = raw(make())
+    far["poses"] = far["poses"] * np.float32(1e30)
+    np.savez(replays / "far_poses.npz", **far)
+    curves = root / "curves"
+    for name, row in (("inf_steps", "1e400,1,0.5"), ("nan_value", "100,1,nan"),
+                      ("negative_steps", "-100,1,0.5")):  # fmt: skip
+        (curves / name).mkdir(parents=True)
+        text = f"env_steps,wall_time,eval/pursuer_vs_scripted/success_rate\n{row}\n"
+        (curves / name / "curves.csv.gz").write_bytes(gzip.compress(text.encode()))
+    for name in ("tb_garbage", "tb_zero", "tb_fifo"):
+        (curves / name / "tb").mkdir(parents=True)
+    record = b"\xff\xff\xff\xff\x0f"  # not an Event protobuf
+    (curves / "tb_garbage" / "tb" / "events.out.tfevents.1").write_bytes(
+        len(record).to_bytes(8, "little") + bytes(4) + record + bytes(4)
+    )
+    (curves / "tb_zero" / "tb" / "events.out.tfevents.1").symlink_to("/dev/zero")
+    os.mkfifo(curves / "tb_fifo" / "tb" / "events.out.tfevents.1")
+    fifo_run = root / "runs" / "fifo_config"
+    shutil.copytree(shipped, fifo_run)
+    (fifo_run / "config.json").unlink()
+    os.mkfifo(fifo_run / "config.json")
+    # 1,001 pursuer policies against one evader: a fit of dense [J, C] matrices.
+    results = json.loads(TABLE_III.read_text())
+    pairing = results["pairings"][0]
+    pairing["trials"] = {"evaders_incapacitated": pairing["trials"]["evaders_incapacitated"]}
+    many = []
+    for i in range(1001):
+        one = json.loads(json.dumps(pairing))
+        one["pursuer"] = {"source": f"p{i}", "label": f"P{i}"}
+        many.append(one)
+    results["pairings"] = many
+    results["meta"]["pursuers"] = [f"p{i}" for i in range(1001)]
+    results["meta"]["evaders"] = [pairing["evader"]["source"]]
+    (root / "many_policies.json").write_text(json.dumps(results))
 
 
 def _cases(w: Path) -> list[tuple[str, list[str]]]:
@@ -321,7 +379,7 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
             "--resume-intact")  # fmt: skip
     # Joining a group: bad timeouts fail before any network is touched.
     group = ["--coordinator-address", "127.0.0.1:1", "--num-processes", "2", "--process-id", "1"]
-    for timeout in ("0", "-3", "soon", "1.5"):
+    for timeout in ("0", "-3", "soon", "1.5", str(10**23)):
         add(f"train-join-timeout-{timeout}", "train", *TINY_TRAIN, *out, *group,
             "--join-timeout", timeout)  # fmt: skip
     # ship --resumable: the copy of a run in progress; nothing is written when refused.
@@ -342,12 +400,28 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
         add(f"ship-resumable-{name}", "ship", str(runs / name), "copy", *resumable)
     add("ship-resumable-missing", "ship", str(w / "missing"), "copy", *resumable)
     add("ship-resumable-step", "ship", str(runs / "good"), "copy", *resumable, "--step", "7")
+    # ---- a careless or hostile user (each was a traceback, a hang, two lines or nonsense taken)
+    add("scene-output-newline-exists", "scene", "--preset", "2-1-1", "-o", str(w / "new\nline.xml"))
+    add("evaluate-out-dangling-link", *ev, "--out", str(w / "dangling"))
+    add("train-out-link-loop", "train", *TINY_TRAIN, "--out", str(w / "loop-a"))
+    add("rate-out-link-loop", "rate", str(w / "many_policies.json"), "--out", str(w / "loop-a"))
+    add("rate-too-many-policies", "rate", str(w / "many_policies.json"), "--out", str(w / "board"))
+    for replay in ("deep_json", "far_poses"):
+        add(f"plot-replay-{replay}", "plot", str(w / "replays" / f"{replay}.npz"), "-o",
+            str(w / "replay.png"))  # fmt: skip
+    for name in sorted(p.name for p in (w / "curves").iterdir()):
+        add(f"plot-curves-{name}", "plot", str(w / "curves" / name), "-o", str(w / "curves.png"))
+    for name in ("new\nline", " ", "scripted", "a" * 101):
+        add(f"ship-name-{name[:8]!r}", "ship", str(runs / "good"), name, "--dest", str(w / "adir"))
+    add("train-coordinator-port-superscript", "train", *TINY_TRAIN, *out, "--coordinator-address",
+        "127.0.0.1:\u00b2", "--num-processes", "2", "--process-id", "1")  # fmt: skip
+    add("ship-config-fifo", "ship", str(runs / "fifo_config"), "copy", "--dest", str(w / "adir"))
     return cases
 
 
 def _snapshot(root: Path) -> dict[str, tuple[int, int]]:
-    return {
-        str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns)
+    return {  # lstat: the links to nothing (and the loop) are entries of their own
+        str(p.relative_to(root)): (p.lstat().st_size, p.lstat().st_mtime_ns)
         for p in sorted(root.rglob("*"))
     }
 
@@ -385,6 +459,8 @@ def test_every_bad_input_gets_one_clear_error(world, capsys, monkeypatch):
                 problems.append(f"exit code {code}")
             if len(errors) != 1:
                 problems.append(f"{len(errors)} error lines")
+            elif err.rstrip("\n").splitlines()[-1] != errors[0]:
+                problems.append("the error spans lines")  # a newline in a file name
             if "Traceback" in err + out:
                 problems.append("traceback")
             if "pe-mjx: error" in out:
@@ -418,3 +494,53 @@ def test_console_script_gives_one_line_and_exit_2(tmp_path):
     assert lines == [f"pe-mjx: error: --seed must be in [0, 2**32), got {BIG}"]
     assert "Traceback" not in result.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("stated", ["inf", "-5", "lots"])
+def test_a_bad_stated_memory_is_one_line_naming_the_variable(stated, tmp_path, capsys, monkeypatch):
+    """PE_MJX_MEMORY_BYTES=inf was an OverflowError traceback, -5 blamed --env, lots was
+    ignored."""
+    monkeypatch.setenv("PE_MJX_MEMORY_BYTES", stated)
+    argv = ["train", *TINY_TRAIN, "--out", str(tmp_path / "run")]
+    code, out, err, raised = _run(argv, capsys)
+    assert (code, raised, out) == (2, "", "")
+    assert err == (
+        f"pe-mjx: error: PE_MJX_MEMORY_BYTES must be a positive number of bytes (e.g. 64e9), got "
+        f"{stated!r}; unset it to use this machine's memory\n"
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
+def _console(*args: str, cwd: Path, env: dict[str, str]) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).parent / "pe-mjx"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "pe_mjx.cli"]
+    return subprocess.run(
+        [*cmd, *args],
+        cwd=cwd,
+        env={**os.environ, **env},
+        capture_output=True,
+        timeout=120,
+        check=False,
+    )
+
+
+def test_an_unknown_jax_platform_is_one_line_naming_the_variable(tmp_path):
+    """JAX_PLATFORMS=bogus (or cuda without CUDA) was JAX's traceback from the first array."""
+    result = _console("scene", "-o", "a.xml", cwd=tmp_path, env={"JAX_PLATFORMS": "bogus"})
+    assert result.returncode == 2 and result.stdout == b""
+    lines = result.stderr.decode().strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("pe-mjx: error: JAX_PLATFORMS=bogus: JAX "), (
+        lines
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_name_that_stdout_cannot_encode_is_written_and_printed_escaped(tmp_path):
+    """Under PYTHONIOENCODING=utf-8 (strict), the last line, "wrote <name>", of a file name that
+    is not UTF-8 was "pe-mjx: error: 'utf-8' codec can't encode ..." after the file was written."""
+    name = os.fsdecode(b"arena-\xff.xml")
+    env = {"PYTHONIOENCODING": "utf-8"}
+    result = _console("scene", "--preset", "2-1-1", "-o", name, cwd=tmp_path, env=env)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith(b"wrote arena-\\udcff.xml")
+    assert [p.name for p in tmp_path.iterdir()] == [name]

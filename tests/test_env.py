@@ -143,6 +143,10 @@ def test_contract_jit_vmap(get_compiled, preset, backend):
 def test_bad_backend_and_reset_to_shapes(get_compiled):
     with pytest.raises(ValueError, match="backend"):
         pe_env.make(SMALL, backend="brax")
+    with pytest.raises(TypeError, match="a preset name or an EnvConfig, got NoneType"):
+        pe_env.make(None)  # was AttributeError: 'NoneType' object has no attribute 'pursuer'
+    with pytest.raises(ValueError, match=r"unknown preset \['2-1-1'\]"):
+        get_preset(["2-1-1"])  # was TypeError: unhashable type: 'list'
     c = get_compiled(SMALL, "kinematic")
     with pytest.raises(ValueError, match="reset_to"):
         c.reset_to(jnp.zeros((3, 3)), jnp.zeros((1, 3)), jnp.zeros((1, 3)))

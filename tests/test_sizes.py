@@ -70,6 +70,17 @@ def test_the_size_checks_take_well_under_a_second_and_pass_sane_sizes(monkeypatc
         sizes.check_training(config)
 
 
+@pytest.mark.parametrize("stated", ["inf", "1e400", "-5", "0", "nan", "lots"])
+def test_a_stated_memory_that_is_not_a_number_of_bytes_is_one_line_naming_it(stated, monkeypatch):
+    """ "inf" was an OverflowError traceback, "-5" blamed the flag whose size then did not fit in
+    0 bytes, and "lots" was ignored without a word."""
+    from pe_mjx.config import get_preset
+
+    monkeypatch.setenv("PE_MJX_MEMORY_BYTES", stated)
+    with pytest.raises(sizes.SizeError, match=r"^PE_MJX_MEMORY_BYTES must be a positive number"):
+        sizes.check_scene(get_preset("2-1-1"))
+
+
 def test_evaluate_refuses_trials_that_cannot_fit_before_writing(tmp_path, monkeypatch):
     from pe_mjx.config import get_preset
     from pe_mjx.eval_config import EvalConfig

@@ -151,6 +151,36 @@ def test_load_errors_name_file_and_key(tmp_path):
         load(tmp_path / "shape.npz")
 
 
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("config_json", "[" * 100_000 + "]" * 100_000, "config_json is JSON nested too deeply"),
+        ("meta_json", "[" * 100_000 + "]" * 100_000, "meta_json is JSON nested too deeply"),
+        ("poses", 1e30, r"poses holds a position 1e\+30 m from the centre, beyond the 26 m"),
+        ("obstacles", 1e30, r"obstacles holds a position 1e\+30 m"),
+        ("obstacles", -0.5, "obstacles holds a negative radius"),
+    ],
+)
+def test_crafted_contents_are_refused_naming_the_key(tmp_path, key, value, message):
+    """Deep JSON was a RecursionError traceback; a position far outside the arena (or a
+    negative obstacle) was drawn as an empty arena without a word."""
+    arrays = raw(make())
+    if key.endswith("_json"):
+        arrays[key] = np.asarray(value)
+    elif key == "poses":
+        arrays["poses"] = arrays["poses"].copy()
+        arrays["poses"][:, 1, 1, 0] = value  # arena 1, agent 1 (never downed): every frame
+    elif value < 0:
+        arrays["obstacles"] = arrays["obstacles"].copy()
+        arrays["obstacles"][0, 0, 2] = value
+    else:
+        arrays["obstacles"] = arrays["obstacles"].copy()
+        arrays["obstacles"][0, 0, 0] = value
+    np.savez(tmp_path / "crafted.npz", **arrays)
+    with pytest.raises(TrajectoryError, match=r"crafted\.npz: " + message):
+        load(tmp_path / "crafted.npz")
+
+
 def test_pickled_arrays_are_refused(tmp_path):
     arrays = raw(make())
     arrays["meta_json"] = np.asarray([{"evil": 1}], dtype=object)

@@ -116,6 +116,11 @@ class Controller:
         history: int = 64,
         seed: int = 0,
     ):
+        if not isinstance(config, EnvConfig):
+            raise TypeError(
+                f"config must be an EnvConfig (e.g. pe_mjx.get_preset('4-2-2')), got "
+                f"{type(config).__name__}"
+            )
         self.config = config
         self.policies = dict(policies or {})
         unknown = set(self.policies) - set(TEAMS)
@@ -146,7 +151,19 @@ class Controller:
         radians, the arena centred on the origin) measured at `time` seconds. A pose that is not
         newer than the robot's newest one is ignored (out-of-order delivery)."""
         track = self._track(team, index)
-        pose = np.asarray(pose, dtype=np.float64).reshape(3)
+        # Each wrong shape or type is a ValueError naming the robot, not numpy's own words.
+        try:
+            pose = np.asarray(pose, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"{team} {index}: pose must be numbers (x, y, yaw), got {pose!r}"
+            ) from None
+        try:
+            time = float(time)
+        except (TypeError, ValueError):
+            raise ValueError(f"{team} {index}: time must be seconds, got {time!r}") from None
+        if pose.shape != (3,):
+            raise ValueError(f"{team} {index}: pose must be (x, y, yaw), got shape {pose.shape}")
         if not np.all(np.isfinite(pose)) or not np.isfinite(time):
             raise ValueError(f"{team} {index}: pose and time must be finite, got {pose}, {time}")
         if track.times and time <= track.times[-1]:
@@ -156,14 +173,26 @@ class Controller:
 
     def update_team(self, team: str, poses: Any, times: Any) -> None:
         """`update` for a whole team: poses [A, 3], times a scalar or [A]."""
-        poses = np.asarray(poses, dtype=np.float64).reshape(self.counts[team], 3)
-        times = np.broadcast_to(np.asarray(times, dtype=np.float64), (self.counts[team],))
-        for i in range(self.counts[team]):
+        self._track(team, 0)  # the team is known
+        n = self.counts[team]
+        try:
+            poses = np.asarray(poses, dtype=np.float64)
+            times = np.asarray(times, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{team}: poses and times must be numbers") from None
+        if poses.shape != (n, 3):
+            raise ValueError(f"{team}: poses must be [{n}, 3] (x, y, yaw), got {list(poses.shape)}")
+        if times.shape not in ((), (n,)):
+            raise ValueError(f"{team}: times must be one time or {n}, got {list(times.shape)}")
+        times = np.broadcast_to(times, (n,))
+        for i in range(n):
             self.update(team, i, poses[i], float(times[i]))
 
     def _track(self, team: str, index: int) -> _Track:
         if team not in TEAMS:
             raise ValueError(f"unknown team {team!r}; expected one of {TEAMS}")
+        if not isinstance(index, int | np.integer) or isinstance(index, bool):
+            raise ValueError(f"{team} index must be an integer, got {index!r}")
         if not 0 <= index < self.counts[team]:
             raise ValueError(f"{team} index {index} out of range 0..{self.counts[team] - 1}")
         return self._tracks[team][index]

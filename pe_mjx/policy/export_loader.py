@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import json
 import math
+import stat
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -90,7 +91,11 @@ def _read_member(archive: zipfile.ZipFile, name: str, file_size: int, limit: int
 def _read_archive(path: Path) -> tuple[Any, bytes]:
     """(parsed meta.json, program bytes); `ValueError` for anything that is not a whole file."""
     try:
-        size = path.stat().st_size
+        status = path.stat()
+        if not stat.S_ISREG(status.st_mode):  # /dev/zero was read until memory ran out
+            what = "a directory" if stat.S_ISDIR(status.st_mode) else "a device or a pipe"
+            raise OSError(f"it is {what}, not a policy file")
+        size = status.st_size
         with zipfile.ZipFile(path) as archive:
             meta_bytes = _read_member(archive, META, size, MAX_META_BYTES)
             program = _read_member(archive, PROGRAM, size, MAX_PROGRAM_BYTES)

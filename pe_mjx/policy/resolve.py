@@ -46,6 +46,15 @@ def resolve_policy(
     """
     if team not in TEAMS:
         raise CheckpointError(f"unknown team {team!r}; expected one of {TEAMS}")
+    if not isinstance(spec, str | Path):
+        raise TypeError(f"spec must be a str or a Path, got {type(spec).__name__}")
+    if not str(spec):  # "" was the working directory
+        raise CheckpointError("empty policy spec: give a builtin name, a run or a shipped name")
+    if env_config is not None and not isinstance(env_config, EnvConfig):
+        raise TypeError(
+            f"env_config must be an EnvConfig (e.g. pe_mjx.get_preset('20-5-8')) or None, got "
+            f"{type(env_config).__name__}"
+        )
     if str(spec) in BUILTIN_POLICIES:
         name = str(spec)
         if env_config is None:

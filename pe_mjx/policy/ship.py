@@ -24,12 +24,14 @@ from __future__ import annotations
 import copy
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 from typing import Any
 
 from pe_mjx import outputs
 from pe_mjx.experiment import NetworkConfig
+from pe_mjx.names import BUILTIN_POLICIES
 from pe_mjx.policy import packed, store
 from pe_mjx.policy.shipped import policies_dir, resolve_run
 
@@ -89,9 +91,20 @@ def ship_policy(
     return target, meta
 
 
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+
+
 def check_name(name: str) -> None:
-    if not name or "/" in name or name.startswith("."):
-        raise ValueError(f"NAME: bad name {name!r} (a plain name such as mix-20-5-8)")
+    """A name that `--pursuers NAME` can give back: letters, digits, `.`, `_` and `-` (a newline
+    or a lone space made a directory that nothing could name), not a builtin policy's (a
+    shipped "scripted" was never played: the builtin wins)."""
+    if not _NAME.fullmatch(name):
+        raise ValueError(
+            f"NAME: bad name {name!r} (a plain name such as mix-20-5-8: letters, digits, '.', "
+            "'_' and '-', at most 100)"
+        )
+    if name in BUILTIN_POLICIES:
+        raise ValueError(f"NAME: {name!r} is a builtin policy's name; choose another")
 
 
 MAX_CONFIG_BYTES = 1 << 20
@@ -100,14 +113,11 @@ MAX_CONFIG_BYTES = 1 << 20
 def _read_config(path: Path) -> dict[str, Any]:
     """A run's config.json, read with a byte cap (ValueError naming it when unreadable)."""
     try:
-        with open(path, "rb") as f:
-            data = f.read(MAX_CONFIG_BYTES + 1)
-        if len(data) > MAX_CONFIG_BYTES:
-            raise ValueError("larger than 1 MB")
-        config = json.loads(data)
+        # Through the capped reader: a FIFO here waited for a writer forever.
+        config = json.loads(outputs.read_bytes(path, MAX_CONFIG_BYTES))
         if not isinstance(config, dict):
             raise ValueError("not a JSON object")
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, RecursionError) as err:
         raise ValueError(f"{path}: cannot be read as a run's config ({err})") from None
     return config
 

@@ -69,6 +69,8 @@ DEFAULT_HEARTBEAT_TIMEOUT_S = 100
 lost (and jax ends the group)."""
 DEFAULT_JOIN_TIMEOUT_S = 60
 """Seconds a process waits for the coordinator and for the group to form (`--join-timeout`)."""
+MAX_TIMEOUT_S = 7 * 24 * 3600
+"""The longest --join-timeout and --heartbeat-timeout (a week): 10**23 s waited for ever."""
 JOIN_EXIT_CODE = 2
 """The exit code of a process whose group did not form within the join timeout."""
 _JAX_MARGIN_S = 30  # jax's own deadline comes this much after the watchdog's
@@ -132,7 +134,8 @@ def group_from(
         raise ValueError(f"training on several processes also needs {names}")
     address = str(values["coordinator_address"])
     host, _, port = address.rpartition(":")
-    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+    # isascii: "²" passes isdigit but not int() (a message that named no flag).
+    if not host or not (port.isascii() and port.isdigit()) or not 0 < int(port) < 65536:
         where = _source("coordinator_address", coordinator_address)
         raise ValueError(f"{where} must be HOST:PORT (e.g. 10.0.0.1:1234), got {address!r}")
     n, i = int(values["num_processes"]), int(values["process_id"])  # type: ignore[arg-type]
@@ -142,10 +145,12 @@ def group_from(
         raise ValueError(
             f"{_source('process_id', process_id)} must be in [0, {n}) for {n} processes, got {i}"
         )
-    if heartbeat_timeout_s < 1:
-        raise ValueError(f"--heartbeat-timeout must be >= 1 s, got {heartbeat_timeout_s}")
-    if join_timeout_s < 1:
-        raise ValueError(f"--join-timeout must be >= 1 s, got {join_timeout_s}")
+    if not 1 <= heartbeat_timeout_s <= MAX_TIMEOUT_S:
+        raise ValueError(
+            f"--heartbeat-timeout must be in 1..{MAX_TIMEOUT_S:,} s, got {heartbeat_timeout_s}"
+        )
+    if not 1 <= join_timeout_s <= MAX_TIMEOUT_S:
+        raise ValueError(f"--join-timeout must be in 1..{MAX_TIMEOUT_S:,} s, got {join_timeout_s}")
     return Group(address, n, i, heartbeat_timeout_s, join_timeout_s)
 
 

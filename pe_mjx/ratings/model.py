@@ -51,6 +51,9 @@ PRIOR_SD = 10.0
 ELO_PER_UNIT = 400 / math.log(10)
 """Elo points per unit of rating: a difference of 400 multiplies the odds by 10."""
 MAX_RESAMPLES = 100_000
+MAX_POLICIES = 1_000
+"""Policies (both teams) one leaderboard rates at most: each resample refits them with a dense
+[C, C] Hessian (1,000 take about half an hour at the default 1,000 resamples)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -283,6 +286,25 @@ def check_options(level: float, resamples: int, seed: int) -> None:
         raise ValueError(f"--seed must be in [0, 2**32), got {seed}")
 
 
+def check_size(pairings: Sequence[Pairing], resamples: int) -> None:
+    """The policies and pairings fit one fit (`MAX_POLICIES`) and its arrays fit in memory: a
+    ValueError naming the results, before anything is allocated. A crafted results.json of
+    40,000 policies asked for two dense 13 GB matrices."""
+    from pe_mjx import sizes
+
+    count = len({p.pursuer for p in pairings}) + len({p.evader for p in pairings})
+    if count > MAX_POLICIES:
+        raise ValueError(
+            f"RESULTS.json: {count:,} policies to rate, more than the {MAX_POLICIES:,} one "
+            "leaderboard rates; rate fewer results files at once"
+        )
+    # The design [J, C] three times over (built, sliced, weighted) and the replicates [B, C].
+    need = 8 * count * (3 * len(pairings) + resamples)
+    sizes.check_memory(
+        f"RESULTS.json ({len(pairings):,} pairings of {count:,} policies)", need, "their fits"
+    )
+
+
 def rate(
     pairings: Sequence[Pairing],
     anchor: str = "scripted",
@@ -297,6 +319,7 @@ def rate(
     check_options(level, resamples, seed)
     if not pairings:
         raise ValueError("no pairings to rate")
+    check_size(pairings, resamples)
     columns = _Columns(pairings, anchor)
     strong = _check_connected(pairings, columns)
     wins = np.array([p.wins for p in pairings], dtype=float)

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pe_mjx.config import EnvConfig
+from pe_mjx.names import PARK_DISTANCE
 from pe_mjx.stages.geometry import per_agent
 
 
@@ -20,12 +21,6 @@ class Placement:
     yaw: jax.Array  # [N]
     ok: jax.Array  # bool []: every entity found a candidate with the required clearance
     present: jax.Array  # bool [N]: False for agents absent from this episode (`min_agents`)
-
-
-PARK_DISTANCE = 10.0
-"""Absent agents and obstacles wait this many arena radii from the centre, one metre apart: far
-beyond every distance a rule looks at (collisions, rewards, action masks), and masked out of
-every observation."""
 
 
 def draw_counts(config: EnvConfig, rng: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -194,6 +194,30 @@ def test_errors_are_clear():
         ctrl.observe(np.array([[0.0, 0.0, -1.0]]))
 
 
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda c: c.update("pursuer", 1.5, (0, 0, 0), 0.0), "index must be an integer, got 1.5"),
+        (lambda c: c.update("pursuer", True, (0, 0, 0), 0.0), "index must be an integer"),
+        (lambda c: c.update("pursuer", 0, (1.0, 2.0), 0.0), r"pursuer 0: pose must be \(x, y"),
+        (lambda c: c.update("pursuer", 0, "here", 0.0), "pursuer 0: pose must be numbers"),
+        (lambda c: c.update("pursuer", 0, (0, 0, 0), None), "pursuer 0: time must be seconds"),
+        (lambda c: c.update_team("referee", [(0, 0, 0)], 0.0), "unknown team 'referee'"),
+        (lambda c: c.update_team("pursuer", np.zeros((3, 3)), 0.0), r"must be \[4, 3\]"),
+        (lambda c: c.update_team("pursuer", np.zeros((4, 3)), [0.0, 1.0]), "one time or 4"),
+    ],
+)
+def test_a_wrong_type_or_shape_is_a_value_error_naming_the_robot(call, message):
+    """Each was numpy's own words (or a KeyError, a TypeError) that named no robot."""
+    with pytest.raises(ValueError, match=message):
+        call(Controller(get_preset(ROBOTS)))
+
+
+def test_a_preset_name_for_the_config_is_a_type_error():
+    with pytest.raises(TypeError, match=r"EnvConfig \(e.g. pe_mjx.get_preset"):
+        Controller("4-2-2")
+
+
 def _placed(ctrl: Controller, pursuers, evaders, t: float = 0.0) -> None:
     ctrl.update_team("pursuer", pursuers, t)
     ctrl.update_team("evader", evaders, t)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -215,6 +216,17 @@ def test_loader_refuses_bad_input(exported, tmp_path):
     bad.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="is not a pe-mjx exported policy"):
         load(bad)
+
+
+def test_a_device_a_pipe_or_a_directory_is_refused_before_it_is_read(tmp_path):
+    """`load("/dev/zero")` read until the kernel killed the process (zipfile seeks, then reads
+    to the end); a FIFO waited for a writer."""
+    fifo = tmp_path / "policy.jaxexport"
+    os.mkfifo(fifo)
+    for path, kind in (("/dev/zero", "a device or a pipe"), (fifo, "a device or a pipe"),
+                       (tmp_path, "a directory")):  # fmt: skip
+        with pytest.raises(ValueError, match=f"cannot read it: it is {kind}, not a policy file"):
+            load(path)
 
 
 def test_cli_errors_are_one_line(exported, tmp_path, capsys):

@@ -54,6 +54,14 @@ def test_errors_name_the_problem(tmp_path):
     )
     with pytest.raises(CheckpointError, match="actions"):
         resolve_policy(SHIPPED, "pursuer", other)
+    # Wrong types: errors naming the argument (a preset's name failed inside the scripted
+    # policy with "'str' object has no attribute 'team'"; "" read the working directory).
+    with pytest.raises(TypeError, match="env_config must be an EnvConfig"):
+        resolve_policy("scripted", "pursuer", "4-1-2")
+    with pytest.raises(TypeError, match="spec must be a str or a Path, got NoneType"):
+        load_policy(None, "pursuer")
+    with pytest.raises(CheckpointError, match="empty policy spec"):
+        load_policy("", "pursuer")
 
 
 @pytest.mark.parametrize("layout", ["packed", "orbax"])

@@ -45,8 +45,24 @@ def test_resume_drops_the_points_logged_after_the_checkpoint(tmp_path):
         b"env_steps,wall_time,v\n1,2\n",
         b"env_steps,wall_time,v\n1,2,abc\n",
         b"env_steps,wall_time,v\n1,2,3\n",
+        b"env_steps,wall_time,v\n1e400,2,3\n",
+        b"env_steps,wall_time,v\n1,2,nan\n",
+        b"env_steps,wall_time,v\n-5,2,3\n",
+        b"env_steps,wall_time,v\n1.5,2,3\n",
     ],
-    ids=["not-gzip", "no-env-steps", "short-row", "not-a-number", "truncated"],
+    # The writer never writes nan, inf or a fractional step (`_cell`): 1e400 steps was an
+    # OverflowError traceback, the others a plot of nonsense.
+    ids=[
+        "not-gzip",
+        "no-env-steps",
+        "short-row",
+        "not-a-number",
+        "truncated",
+        "inf-steps",
+        "nan-value",
+        "negative-steps",
+        "fractional-steps",
+    ],
 )
 def test_damaged_files_are_one_clear_error(tmp_path, content):
     """(The gzip bytes are made in the test, not in the parameters: their header holds the time

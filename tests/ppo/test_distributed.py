@@ -142,7 +142,18 @@ def test_lost_process_errors_are_recognised():
                 *("--coordinator-address", "h:1", "--num-processes", "2"),
                 *("--process-id", "1", "--join-timeout", "0"),
             ],
-            "--join-timeout must be >= 1 s, got 0",
+            "--join-timeout must be in 1..604,800 s, got 0",
+        ),
+        (
+            [
+                *("--coordinator-address", "h:1", "--num-processes", "2"),
+                *("--process-id", "1", "--join-timeout", str(10**23)),
+            ],
+            "--join-timeout must be in 1..604,800 s",  # it waited 10**23 s
+        ),
+        (
+            ["--coordinator-address", "h:\u00b2", "--num-processes", "2", "--process-id", "1"],
+            "--coordinator-address must be HOST:PORT",  # "²" passed isdigit, failed int()
         ),
         (["--join-timeout", "soon", "--num-processes", "2"], "--join-timeout must be an integer"),
     ],

@@ -191,3 +191,13 @@ def test_ratings_that_nothing_links_are_refused():
         model.rate(linked, anchor="nobody", resamples=10)
     with pytest.raises(ValueError, match="--resamples"):
         model.rate(linked, resamples=1)
+
+
+def test_more_policies_than_a_fit_can_take_are_refused_before_anything_is_allocated(monkeypatch):
+    """A crafted results.json of 40,000 policies (35 MB) asked for two dense 13 GB matrices."""
+    many = [Pairing(f"p{i}", "scripted", np.array([0, 1]), 1, "seed 0") for i in range(1001)]
+    with pytest.raises(ValueError, match="1,002 policies to rate, more than the 1,000"):
+        model.rate(many, resamples=10)
+    monkeypatch.setenv("PE_MJX_MEMORY_BYTES", "1000")
+    with pytest.raises(ValueError, match=r"RESULTS.json \(16 pairings of 8 policies\): their fits"):
+        model.rate(simulate(np.random.default_rng(0), trials=5), resamples=10)
