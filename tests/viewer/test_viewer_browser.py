@@ -32,8 +32,17 @@ RENDER_TIMEOUT = 90.0
 
 
 def open_viewer(browser, url: str):
+    """Opens the viewer in a new tab, brought to the front (viser's client reconnects a dropped
+    websocket only while its page has the focus), and waits for a frame with both teams. A
+    timeout says what the page showed: the team pixels of its last screenshot and its text."""
     page = browser.new_page(url)
-    image = page.wait_for_image(shows_both_teams, timeout=RENDER_TIMEOUT)
+    page.page.bring_to_front()
+    try:
+        image = page.wait_for_image(shows_both_teams, timeout=RENDER_TIMEOUT)
+    except BrowserError as err:
+        counts = team_counts(page.screenshot())
+        text = " ".join(str(page.evaluate("document.body.innerText")).split())[:300]
+        raise AssertionError(f"{err}; team pixels {counts}; page text: {text!r}") from None
     return page, image
 
 
