@@ -273,10 +273,9 @@ def _restore_resumable_copy(run_dir: Path, step: int, trainer: Trainer, abstract
             f"{short_error(err)}"
         ) from None
     learners = _unflat(target, jax.tree.map(np.asarray, saved))
-    print(
-        f"pe-mjx: warning: checkpoint {step} of {run_dir} is a resumable copy without arenas: "
-        f"resuming its learners, counters and RNG exactly, with freshly drawn arenas",
-        file=sys.stderr,
+    _warn(
+        f"checkpoint {step} of {run_dir} is a resumable copy without arenas: "
+        f"resuming its learners, counters and RNG exactly, with freshly drawn arenas"
     )
     return _with_fresh_arenas(trainer, learners)
 
@@ -324,11 +323,10 @@ def _restore_across_versions(
         learners,
     )
     rng, iteration, env_steps = (np.asarray(saved[k]) for k in tail_keys)
-    print(
-        f"pe-mjx: warning: {run_dir} was saved by another pe-mjx version whose arena state "
+    _warn(
+        f"{run_dir} was saved by another pe-mjx version whose arena state "
         f"differs ({len(keys)} saved arrays, {n_teams} of them the learners'): resuming its "
-        f"learners, counters and RNG with freshly drawn arenas",
-        file=sys.stderr,
+        f"learners, counters and RNG with freshly drawn arenas"
     )
     return _with_fresh_arenas(trainer, (teams, pool, rng, iteration, env_steps))
 
@@ -351,6 +349,12 @@ def _restore_step(run_dir: Path, step: int, trainer: Trainer, abstract: Any) -> 
         return _unflat(abstract, jax.tree.map(np.asarray, restored))
     except Exception as err:
         return _restore_across_versions(run_dir, step, trainer, abstract, err)
+
+
+def _warn(message: str) -> None:
+    """One warning line, from process 0 of a group only (every process restores the same)."""
+    if is_primary():
+        print(f"pe-mjx: warning: {message}", file=sys.stderr)
 
 
 def _set_aside(run_dir: Path, steps: list[int], err: Exception, intact: int) -> None:
