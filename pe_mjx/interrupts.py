@@ -118,8 +118,14 @@ def exit_now(message: str, code: int) -> None:
         for remove in list(_temporaries.values()):
             with contextlib.suppress(Exception):
                 remove()
+    # The command line's line goes to the process's own stderr: the watchdog may end the process
+    # while the main thread has `sys.stderr` redirected (the flag parse captures tyro's output),
+    # and the line printed there was lost (exit 130 with nothing on stderr, a flaky CI test).
+    stream = sys.stderr
+    if _state.for_cli and sys.__stderr__ is not None:
+        stream = sys.__stderr__
     with contextlib.suppress(OSError, ValueError):  # a closed stderr must not keep it alive
-        print(message, file=sys.stderr, flush=True)
+        print(message, file=stream, flush=True)
     with contextlib.suppress(OSError, ValueError):
         sys.stdout.flush()
     os._exit(code)

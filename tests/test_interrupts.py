@@ -56,6 +56,23 @@ def test_the_handler_records_and_never_raises_the_safe_points_raise():
     assert {s: signal.getsignal(s) for s in outer} == outer
 
 
+def test_the_line_reaches_the_real_stderr_while_a_redirect_is_in_flight():
+    """A Ctrl-C during the flag parse, which captures stderr to turn tyro's output into one line,
+    was ended by the watchdog with its line printed into the capture: exit 130 and an empty
+    stderr (a CI failure). The line goes to the process's own stderr."""
+    code = (
+        "import contextlib, io, os, signal, time\n"
+        "from pe_mjx import interrupts\n"
+        "interrupts.install_for_cli()\n"
+        "with contextlib.redirect_stderr(io.StringIO()):\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(30)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 130, done.stderr
+    assert done.stderr.strip().splitlines() == [interrupts.MESSAGE]
+
+
 def _tiny_evaluate(out: Path) -> list[str]:
     return [
         CLI, "evaluate", "--pursuers", "scripted", "--evaders", "scripted", "--preset", "4-1-2",
