@@ -32,9 +32,11 @@ RENDER_TIMEOUT = 90.0
 
 
 def open_viewer(browser, url: str):
-    """Opens the viewer in a new tab, brought to the front (viser's client reconnects a dropped
-    websocket only while its page has the focus), and waits for a frame with both teams. A
-    timeout says what the page showed: the team pixels of its last screenshot and its text."""
+    """Opens the viewer in a new tab, brought to the front (viser's client retries a dropped
+    websocket only while `document.hasFocus()`; headless Chromium reports the focus on every
+    tab, checked 2026-12-06, so this matters for a headed browser only), and waits for a frame
+    with both teams. A timeout says what the page showed: the team pixels of its last
+    screenshot and its text."""
     page = browser.new_page(url)
     page.page.bring_to_front()
     try:
@@ -63,8 +65,7 @@ def wait_for_text(page, text: str, timeout: float, what: str) -> None:
     """Waits until `text` is part of what the page shows.
 
     The page polls itself (Playwright's wait_for_function), so a busy renderer costs no round
-    trip per look; the tab is brought to the front first, because viser's client reconnects a
-    dropped websocket only while its page has the focus."""
+    trip per look; the tab is brought to the front first (see `open_viewer`)."""
     page.page.bring_to_front()
     try:
         page.wait_for(f"document.body.innerText.includes({json.dumps(text)})", timeout=timeout)
