@@ -287,8 +287,8 @@ def _commit_dir(stage: Path, target: Path) -> None:
 
 def read_bytes(path: str | Path, cap: int, *, flag: str | None = None) -> bytes:
     """The bytes of `path`, reading at most `cap` + 1 of them (an `OutputError`, a ValueError
-    naming `flag` and the path, if it holds more or cannot be read): safe on /dev/zero, a FIFO
-    with no writer (empty) or a pipe."""
+    naming `flag` and the path, if it holds more, is a device or cannot be read): safe on
+    /dev/zero, a FIFO with no writer (empty) or a pipe (read, up to `cap`)."""
     path = Path(path)
     label = _label(path, flag)
     try:
@@ -296,8 +296,15 @@ def read_bytes(path: str | Path, cap: int, *, flag: str | None = None) -> bytes:
     except OSError as err:
         raise OutputError(f"{label}: cannot read: {err.strerror or err}") from None
     try:
-        if stat.S_ISDIR(os.fstat(fd).st_mode):
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
             raise OutputError(f"{label} is a directory; give a file")
+        # A device holds no file to read (/dev/zero would fill `cap` bytes of memory, 512 MB for
+        # a results.json, before the refusal); a regular file says its size before any read.
+        if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode):
+            raise OutputError(f"{label} is a device, not a file; refused")
+        if stat.S_ISREG(info.st_mode) and info.st_size > cap:
+            raise OutputError(f"{label}: larger than {cap:,} bytes; refused")
         with contextlib.suppress(OSError, AttributeError):
             os.set_blocking(fd, True)
         chunks, size = [], 0

@@ -416,6 +416,9 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
     add("train-coordinator-port-superscript", "train", *TINY_TRAIN, *out, "--coordinator-address",
         "127.0.0.1:\u00b2", "--num-processes", "2", "--process-id", "1")  # fmt: skip
     add("ship-config-fifo", "ship", str(runs / "fifo_config"), "copy", "--dest", str(w / "adir"))
+    add("plot-fps-huge", "plot", str(w / "replays" / "text.npz"), "-o", str(w / "r.gif"),
+        "--fps", "100000")  # fmt: skip
+    add("rate-dev-zero", "rate", "/dev/zero", "--out", str(w / "board"))
     return cases
 
 

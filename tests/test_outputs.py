@@ -154,11 +154,24 @@ def test_evaluate_builds_its_results_beside_out_and_leaves_nothing_on_failure(
 
 def test_reads_are_capped_for_devices_and_fifos(tmp_path):
     tic = time.monotonic()
-    with pytest.raises(OutputError, match=r"--config: /dev/zero: larger than 1,000 bytes"):
+    # A device is refused before a byte is read (/dev/zero filled the whole cap first).
+    with pytest.raises(OutputError, match=r"--config: /dev/zero is a device, not a file"):
         outputs.read_bytes("/dev/zero", 1000, flag="--config")
+    (tmp_path / "big.json").write_bytes(b" " * 1001)
+    with pytest.raises(OutputError, match=r"big.json: larger than 1,000 bytes"):
+        outputs.read_bytes(tmp_path / "big.json", 1000)
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
     assert outputs.read_bytes(fifo, 1000) == b""  # no writer: empty, no wait
+    # A pipe says no size: read up to the cap, then refused (its write end stays open here).
+    read_end, write_end = os.pipe()
+    try:
+        os.write(write_end, b"x" * 5000)
+        with pytest.raises(OutputError, match=r"larger than 1,000 bytes"):
+            outputs.read_bytes(f"/proc/self/fd/{read_end}", 1000)
+    finally:
+        os.close(read_end)
+        os.close(write_end)
     assert time.monotonic() - tic < 5
     (tmp_path / "ok.txt").write_text("é")
     assert outputs.read_text(tmp_path / "ok.txt", 10) == "é"

@@ -11,6 +11,10 @@ import tyro
 from pe_mjx import outputs
 from pe_mjx.commands.common import fail
 
+MAX_FPS = 100
+"""The fastest animation: a GIF counts its frame delays in hundredths of a second, so above 100
+fps the delay rounds to 0 and viewers play it at a rate of their own, slower than asked."""
+
 
 @dataclasses.dataclass(frozen=True)
 class PlotArgs:
@@ -26,7 +30,7 @@ class PlotArgs:
     arena: int = 0
     """Which recorded arena of a replay to draw."""
     fps: int = 10
-    """Frames per second of an animation."""
+    """Frames per second of an animation (1 to 100)."""
     force: bool = False
     """Overwrite an existing output file."""
 
@@ -34,8 +38,8 @@ class PlotArgs:
 def run_plot(args: PlotArgs) -> None:
     from pe_mjx import plots
 
-    if args.fps < 1:
-        fail(f"--fps must be >= 1, got {args.fps}")
+    if not 1 <= args.fps <= MAX_FPS:
+        fail(f"--fps must be in [1, {MAX_FPS}], got {args.fps}")
     if args.output is not None and not args.output.parent.is_dir():
         fail(f"--output: directory {args.output.parent} does not exist")
     if args.path.is_dir():
