@@ -15,12 +15,19 @@ MAX_FILE_BYTES = 10**6
 
 
 def tracked() -> dict[str, int]:
-    """Tracked path -> its size in bytes (paths deleted in the work tree are left out)."""
+    """Tracked path -> its size in bytes as the tree stores it (a symlink is its target's name,
+    as `du` counts it: the runs that link a shipped policy hold no second copy); paths deleted
+    in the work tree are left out."""
     out = subprocess.run(
         ["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True, timeout=60
     ).stdout.decode()
     paths = [p for p in out.split("\0") if p]
-    return {p: (ROOT / p).stat().st_size for p in paths if (ROOT / p).is_file()}
+    sizes = {}
+    for path in paths:
+        file = ROOT / path
+        if file.is_symlink() or file.is_file():
+            sizes[path] = file.lstat().st_size
+    return sizes
 
 
 def _in_progress_checkpoint(path: str) -> bool:
