@@ -121,9 +121,7 @@ def exit_now(message: str, code: int) -> None:
     # The command line's line goes to the process's own stderr: the watchdog may end the process
     # while the main thread has `sys.stderr` redirected (the flag parse captures tyro's output),
     # and the line printed there was lost (exit 130 with nothing on stderr, a flaky CI test).
-    stream = sys.stderr
-    if _state.for_cli and sys.__stderr__ is not None:
-        stream = sys.__stderr__
+    stream = (real_stderr() if _state.for_cli else None) or sys.stderr
     with contextlib.suppress(OSError, ValueError):  # a closed stderr must not keep it alive
         print(message, file=stream, flush=True)
     with contextlib.suppress(OSError, ValueError):

@@ -291,6 +291,7 @@ def read_bytes(path: str | Path, cap: int, *, flag: str | None = None) -> bytes:
     /dev/zero, a FIFO with no writer (empty) or a pipe (read, up to `cap`)."""
     path = Path(path)
     label = _label(path, flag)
+    too_large = f"{label}: larger than {cap:,} bytes; refused"
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO: no wait
     except OSError as err:
@@ -304,7 +305,7 @@ def read_bytes(path: str | Path, cap: int, *, flag: str | None = None) -> bytes:
         if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode):
             raise OutputError(f"{label} is a device, not a file; refused")
         if stat.S_ISREG(info.st_mode) and info.st_size > cap:
-            raise OutputError(f"{label}: larger than {cap:,} bytes; refused")
+            raise OutputError(too_large)
         with contextlib.suppress(OSError, AttributeError):
             os.set_blocking(fd, True)
         chunks, size = [], 0
@@ -318,7 +319,7 @@ def read_bytes(path: str | Path, cap: int, *, flag: str | None = None) -> bytes:
             chunks.append(chunk)
             size += len(chunk)
         if size > cap:
-            raise OutputError(f"{label}: larger than {cap:,} bytes; refused")
+            raise OutputError(too_large)
         return b"".join(chunks)
     finally:
         os.close(fd)

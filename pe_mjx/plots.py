@@ -219,6 +219,17 @@ def plot_trajectory(traj: Trajectory, out: str | Path, arena: int = 0, force: bo
     return out
 
 
+MAX_FPS = 100
+"""The fastest animation: a GIF counts its frame delays in hundredths of a second, so above 100
+fps the delay rounds to 0 and viewers play it at a rate of their own, slower than asked."""
+
+
+def check_fps(fps: int) -> None:
+    """A ValueError naming --fps unless 1 <= `fps` <= `MAX_FPS`."""
+    if not 1 <= fps <= MAX_FPS:
+        raise ValueError(f"--fps must be in [1, {MAX_FPS}], got {fps}")
+
+
 def animate_trajectory(
     traj: Trajectory,
     out: str | Path,
@@ -236,6 +247,7 @@ def animate_trajectory(
     import matplotlib.pyplot as plt
 
     out = Path(out)
+    check_fps(fps)
     if out.suffix.lower() not in (".gif", ".mp4"):
         raise ValueError(f"an animation is a .gif or .mp4 file, got {out.name}")
     if out.suffix.lower() == ".mp4":

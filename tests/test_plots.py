@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from tensorboardX import SummaryWriter
 
 from pe_mjx import plots
@@ -53,3 +54,15 @@ def test_evaluate_compiles_once_per_shape_and_plots_replays(tmp_path):
     assert gif.returncode == 0, gif.stderr
     assert (tmp_path / "fig4.png").stat().st_size > 10_000
     assert (tmp_path / "replay.gif").read_bytes()[:6] == b"GIF89a"
+
+
+def test_an_animation_refuses_a_frame_rate_a_gif_cannot_hold(tmp_path):
+    """The library checks --fps as the command line does (fps 0 divided by zero; above 100 a
+    GIF's delay rounds to 0), before a frame is drawn or a file written."""
+    from tests.viewer.viewer_helpers import synthetic_trajectory
+
+    traj = synthetic_trajectory(frames=3)
+    for fps in (0, 101, 100_000):
+        with pytest.raises(ValueError, match=r"--fps must be in \[1, 100\]"):
+            plots.animate_trajectory(traj, tmp_path / "a.gif", fps=fps)
+    assert list(tmp_path.iterdir()) == []

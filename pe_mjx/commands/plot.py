@@ -11,10 +11,6 @@ import tyro
 from pe_mjx import outputs
 from pe_mjx.commands.common import fail
 
-MAX_FPS = 100
-"""The fastest animation: a GIF counts its frame delays in hundredths of a second, so above 100
-fps the delay rounds to 0 and viewers play it at a rate of their own, slower than asked."""
-
 
 @dataclasses.dataclass(frozen=True)
 class PlotArgs:
@@ -38,8 +34,10 @@ class PlotArgs:
 def run_plot(args: PlotArgs) -> None:
     from pe_mjx import plots
 
-    if not 1 <= args.fps <= MAX_FPS:
-        fail(f"--fps must be in [1, {MAX_FPS}], got {args.fps}")
+    try:
+        plots.check_fps(args.fps)  # before anything is read
+    except ValueError as err:
+        fail(str(err))
     if args.output is not None and not args.output.parent.is_dir():
         fail(f"--output: directory {args.output.parent} does not exist")
     if args.path.is_dir():
