@@ -3,7 +3,10 @@ the progress bar over them, and the recording of a pairing's first trials as a t
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import dataclasses
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,38 +22,69 @@ from pe_mjx.eval_metrics import PairingResult
 from pe_mjx.policy.core import Policy
 
 
+@dataclasses.dataclass
+class _Program:
+    fn: Callable[..., Any]
+    batches_run: set[int] = dataclasses.field(default_factory=set)
+    """Batch sizes this program was called with: each compiled once."""
+
+
+PROGRAMS_KEPT = 32
+"""Compiled episode programs kept per process (least recently used dropped first)."""
+
+_programs: collections.OrderedDict[tuple, _Program] = collections.OrderedDict()
+_programs_lock = threading.Lock()
+
+
+def clear_programs() -> None:
+    """Forgets every compiled episode program of this process (the next evaluation compiles)."""
+    with _programs_lock:
+        _programs.clear()
+
+
 class Games:
-    """Jitted episode batches, one compile per (pursuer shape, evader shape, batch, record): the
-    policies' learned state is an argument, so pairings of same-shaped policies share a program
-    (compiling took about 15 s of each pairing when every pairing closed over its parameters)."""
+    """Jitted episode batches, one compile per (scene, backend, pursuer shape, evader shape,
+    record, batch): the policies' learned state is an argument, so pairings of same-shaped
+    policies share a program (compiling took about 15 s of each pairing when every pairing
+    closed over its parameters). The programs outlive one evaluation: a later `evaluate()` of
+    the same scene in the same process (a sweep, a notebook, `keep=`) reuses them, up to
+    `PROGRAMS_KEPT` of them."""
 
     def __init__(self, env: PursuitEvasionEnv, log: Any = None):
         self.env = env
         self.log = log
         """Told "compiling..." before each new compile when no progress bar shows it."""
-        self.compiled: dict[tuple, Callable[..., Any]] = {}
-        self.shapes_run: set[tuple] = set()
 
-    def _fn(self, p_spec: Policy, e_spec: Policy, record: bool) -> Callable[..., Any]:
-        key = (p_spec.shape_key, e_spec.shape_key, record)
-        if key not in self.compiled:
-            p_apply, e_apply, env = p_spec.apply, e_spec.apply, self.env
+    def _program(self, p_spec: Policy, e_spec: Policy, record: bool) -> _Program:
+        # A policy's shape_key fixes its program for a given scene; builtin policies are built
+        # from the scene's config, so the config (a frozen dataclass) is part of the key.
+        key = (self.env.config, self.env.backend, p_spec.shape_key, e_spec.shape_key, record)
+        with _programs_lock:
+            program = _programs.get(key)
+            if program is None:
+                program = _programs[key] = _Program(self._jit(p_spec, e_spec, record))
+                while len(_programs) > PROGRAMS_KEPT:
+                    _programs.popitem(last=False)
+            _programs.move_to_end(key)
+        return program
 
-            def run(p_vars, e_vars, keys):
-                pols = {
-                    "pursuer": lambda obs, rng: p_apply(p_vars, obs, rng),
-                    "evader": lambda obs, rng: e_apply(e_vars, obs, rng),
-                }
-                return play_episodes(env, pols, keys, record=record)
+    def _jit(self, p_spec: Policy, e_spec: Policy, record: bool) -> Callable[..., Any]:
+        p_apply, e_apply, env = p_spec.apply, e_spec.apply, self.env
 
-            self.compiled[key] = jax.jit(run)
-        return self.compiled[key]
+        def run(p_vars, e_vars, keys):
+            pols = {
+                "pursuer": lambda obs, rng: p_apply(p_vars, obs, rng),
+                "evader": lambda obs, rng: e_apply(e_vars, obs, rng),
+            }
+            return play_episodes(env, pols, keys, record=record)
+
+        return jax.jit(run)
 
     def play(self, p_spec, e_spec, keys, bar=None, title: str = ""):
         """The batched final state of one episode per key, in chunks so that the progress bar
         moves over the trials (chunks of equal size, the last padded: one compile). Only on
         CPU, where a wider batch gains little; an accelerator plays all trials in one batch."""
-        fn = self._fn(p_spec, e_spec, False)
+        program = self._program(p_spec, e_spec, False)
         n = len(keys)
         steps = PROGRESS_STEPS if jax.default_backend() == "cpu" else 1
         chunk = -(-n // min(n, steps))
@@ -63,14 +97,13 @@ class Games:
             part = keys[start : start + chunk]
             if len(part) < chunk:
                 part = jnp.concatenate([part, keys[: chunk - len(part)]])
-            shape = (p_spec.shape_key, e_spec.shape_key, chunk)
-            if shape not in self.shapes_run:
+            if chunk not in program.batches_run:
                 if bar is not None:
                     bar.update(task, description=f"{title}: compiling...")
                 elif self.log is not None:
                     self.log(f"{title}: compiling...")
-            self.shapes_run.add(shape)
-            final = fn(p_spec.variables, e_spec.variables, part)
+            program.batches_run.add(chunk)
+            final = program.fn(p_spec.variables, e_spec.variables, part)
             finals.append(final)
             if bar is not None:
                 bar.update(task, advance=min(chunk, n - start), description=title)
@@ -79,12 +112,11 @@ class Games:
         return jax.tree.map(lambda *x: jnp.concatenate(x)[:n], *finals)
 
     def record(self, p_spec, e_spec, keys):
-        shape = (p_spec.shape_key, e_spec.shape_key, len(keys), "record")
-        if shape not in self.shapes_run and self.log is not None:
+        program = self._program(p_spec, e_spec, True)
+        if len(keys) not in program.batches_run and self.log is not None:
             self.log(f"{e_spec.label} vs {p_spec.label}: compiling the recording...")
-        self.shapes_run.add(shape)
-        fn = self._fn(p_spec, e_spec, True)
-        return fn(p_spec.variables, e_spec.variables, keys)
+        program.batches_run.add(len(keys))
+        return program.fn(p_spec.variables, e_spec.variables, keys)
 
 
 PROGRESS_STEPS = 10

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from tensorboardX import SummaryWriter
 
-from pe_mjx import plots
+from pe_mjx import eval_games, plots
 from pe_mjx.evaluate import evaluate
 
 CLI = str(Path(sys.executable).parent / "pe-mjx")
@@ -38,6 +38,7 @@ def test_plot_run_learning_curves(tmp_path):
 
 
 def test_evaluate_compiles_once_per_shape_and_plots_replays(tmp_path):
+    eval_games.clear_programs()  # an earlier test of this process may have compiled it
     log: list[str] = []
     report = evaluate(
         ["mix-20-5-8", "mix-20-5-8"], ["scripted"], "2-1-1", tmp_path / "res", trials=2,
