@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from pe_mjx.config import EnvConfig
 from pe_mjx.names import BUILTIN_POLICIES, TEAMS
 from pe_mjx.policy.core import Policy, team_letter
@@ -48,6 +50,9 @@ def resolve_policy(
         raise CheckpointError(f"unknown team {team!r}; expected one of {TEAMS}")
     if not isinstance(spec, str | Path):
         raise TypeError(f"spec must be a str or a Path, got {type(spec).__name__}")
+    for name, flag in (("deterministic", deterministic), ("fallback", fallback)):
+        if not isinstance(flag, bool | np.bool_):  # "yes" and "no" were both truthy
+            raise TypeError(f"{name} must be True or False, got {flag!r}")
     if not str(spec):  # "" was the working directory
         raise CheckpointError("empty policy spec: give a builtin name, a run or a shipped name")
     if env_config is not None and not isinstance(env_config, EnvConfig):

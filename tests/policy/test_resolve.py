@@ -62,6 +62,11 @@ def test_errors_name_the_problem(tmp_path):
         load_policy(None, "pursuer")
     with pytest.raises(CheckpointError, match="empty policy spec"):
         load_policy("", "pursuer")
+    # A flag given as a string ("no" is truthy) is refused rather than read as greedy.
+    with pytest.raises(TypeError, match="deterministic must be True or False, got 'no'"):
+        load_policy(SHIPPED, "pursuer", deterministic="no")
+    with pytest.raises(TypeError, match="fallback must be True or False, got 1"):
+        resolve_policy(SHIPPED, "pursuer", config, fallback=1)
 
 
 @pytest.mark.parametrize("layout", ["packed", "orbax"])
