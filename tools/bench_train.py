@@ -58,9 +58,28 @@ class Args:
     reset_ablation: bool = True
     """Also time MIX with the env's reset computed on every step (`vmap(AutoResetWrapper.step)`)
     instead of only on steps where an arena finished (`step_batch`, what the trainer does)."""
+    pool_ablation: bool = True
+    """Also time MIX with its evaders training against an opponent pool (`POOL`: the co-evolving
+    pursuers, their last 4 snapshots and the scripted pursuers), where each arena's snapshot
+    pursuers run with their own gathered parameters (`pe_mjx.ppo.pool`)."""
+
+
+POOL = {
+    "pool.team": "evader",
+    "pool.snapshot_every": 10,
+    "pool.keep": 4,
+    "pool.fixed": ["scripted"],
+    "pool.p_current": 0.5,
+    "pool.p_snapshots": 0.3,
+    "pool.p_fixed": 0.2,
+}
+"""The pool of the ablation row: what issue 34's pool co-evolution would train against."""
 
 
 def measure(config: ExperimentConfig, repeats: int, eager_reset: bool = False) -> dict:
+    """One configuration's iteration, timed; and, without an opponent pool, the shares of the
+    env, the rollout's forward passes and the update (the env-only rollout swaps the policies
+    for random ones, which a pool's acting does not allow: None there)."""
     trainer = Trainer(config)
     if eager_reset:  # the ablation: a fresh arena drawn for every arena on every step
         trainer.env.step_batch = jax.vmap(trainer.env.step)
@@ -72,13 +91,17 @@ def measure(config: ExperimentConfig, repeats: int, eager_reset: bool = False) -
     t_iter = best_of(lambda s: iteration(s)[1], state, repeats=repeats).wall
     rollout = jax.jit(lambda s: trainer._rollout(s, s.rng)[1])
     t_roll = best_of(rollout, state, repeats=repeats).wall
-    # Env only: the same rollout machinery with random masked policies for both teams.
-    saved = (trainer.learned, dict(trainer.fixed))
-    trainer.learned = ()
-    trainer.fixed = {t: make_policy("random", trainer.env_config, t) for t in ("pursuer", "evader")}
-    env_only = jax.jit(lambda s: trainer._rollout(s, s.rng)[1]["done"])
-    t_env = best_of(env_only, state, repeats=repeats).wall
-    trainer.learned, trainer.fixed = saved
+    t_env = None
+    if not config.pool.on:
+        # Env only: the same rollout machinery with random masked policies for both teams.
+        saved = (trainer.learned, dict(trainer.fixed))
+        trainer.learned = ()
+        trainer.fixed = {
+            t: make_policy("random", trainer.env_config, t) for t in ("pursuer", "evader")
+        }
+        env_only = jax.jit(lambda s: trainer._rollout(s, s.rng)[1]["done"])
+        t_env = best_of(env_only, state, repeats=repeats).wall
+        trainer.learned, trainer.fixed = saved
     steps = config.steps_per_iteration
     agents = trainer.env_config.num_agents
     return {
@@ -88,16 +111,27 @@ def measure(config: ExperimentConfig, repeats: int, eager_reset: bool = False) -
         "num_envs": config.ppo.num_envs,
         "unroll_length": config.ppo.unroll_length,
         "reset": "every step" if eager_reset else "when done",
+        "pool": _pool_label(config),
         "compile_s": compile_s,
         "env_steps_per_s": steps / t_iter,
         "agent_steps_per_s": steps * agents / t_iter,
-        "share_env": t_env / t_iter,
-        "share_forward": max(t_roll - t_env, 0.0) / t_iter,
+        "share_env": None if t_env is None else t_env / t_iter,
+        "share_forward": None if t_env is None else max(t_roll - t_env, 0.0) / t_iter,
         "share_update": max(t_iter - t_roll, 0.0) / t_iter,
         # The most this iteration could do if the env and the rollout's forward passes cost
         # nothing: what the PPO update alone allows.
         "update_bound_env_steps_per_s": steps / max(t_iter - t_roll, 1e-9),
     }
+
+
+def _pool_label(config: ExperimentConfig) -> str:
+    pool = config.pool
+    if not pool.on:
+        return "off"
+    return (
+        f"{pool.team}s vs current {pool.p_current:g}, {pool.keep} snapshots "
+        f"{pool.p_snapshots:g}, {'/'.join(pool.fixed) or '-'} {pool.p_fixed:g}"
+    )
 
 
 def measure_peer(num_envs: int, unroll: int, repeats: int) -> dict:
@@ -120,6 +154,7 @@ def measure_peer(num_envs: int, unroll: int, repeats: int) -> dict:
         "num_envs": num_envs,
         "unroll_length": unroll,
         "reset": "auto (in step)",
+        "pool": "off",
         "compile_s": compile_s,
         "env_steps_per_s": steps / t_iter,
         "agent_steps_per_s": steps * len(env.agents) / t_iter,
@@ -137,15 +172,18 @@ def main() -> None:
         result = measure_peer(64, 32, args.repeats)
         print(json.dumps(result), flush=True)
         runs.append(result)
-    plan = [("20-5-8", e, args.backend, 64, 32, False) for e in args.encoders]
+    plan = [("20-5-8", e, args.backend, 64, 32, False, False) for e in args.encoders]
     if args.reset_ablation:
-        plan.append(("20-5-8", "mix", args.backend, 64, 32, True))
+        plan.append(("20-5-8", "mix", args.backend, 64, 32, True, False))
+    if args.pool_ablation:
+        plan.append(("20-5-8", "mix", args.backend, 64, 32, False, True))
     if not args.quick:
-        plan.append(("20-5-8", "mix", "mjx", 64, 32, False))
-        plan += [("240-60-120", e, args.backend, 8, 16, False) for e in args.encoders]
-    for preset, encoder, backend, num_envs, unroll, eager_reset in plan:
+        plan.append(("20-5-8", "mix", "mjx", 64, 32, False, False))
+        plan += [("240-60-120", e, args.backend, 8, 16, False, False) for e in args.encoders]
+    for preset, encoder, backend, num_envs, unroll, eager_reset, pool in plan:
         config = paper_experiment(encoder, preset, backend=backend).override(
             {"ppo.num_envs": num_envs, "ppo.unroll_length": unroll, "eval_every": 0}
+            | (POOL if pool else {})
         )
         result = measure(config, args.repeats, eager_reset)
         print(json.dumps(result), flush=True)
@@ -162,9 +200,9 @@ def table(runs: list[dict], machine: dict) -> str:
         f"{machine['jax']}, {machine['date']}); default network (width 32, 4 heads, hidden 64), "
         "PPO 2 epochs x 4 minibatches.",
         "",
-        "| preset | encoder | backend | reset | envs x unroll | env-steps/s | agent-steps/s | "
-        "env | forward | update | update alone allows | compile s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| preset | encoder | backend | reset | opponent pool | envs x unroll | env-steps/s | "
+        "agent-steps/s | env | forward | update | update alone allows | compile s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
 
     def share(x):
@@ -176,7 +214,8 @@ def table(runs: list[dict], machine: dict) -> str:
 
     for r in runs:
         lines.append(
-            f"| {r['preset']} | {r['encoder']} | {r['backend']} | {r['reset']} | {r['num_envs']}x"
+            f"| {r['preset']} | {r['encoder']} | {r['backend']} | {r['reset']} "
+            f"| {r.get('pool', 'off')} | {r['num_envs']}x"
             f"{r['unroll_length']} | {r['env_steps_per_s']:,.0f} | {r['agent_steps_per_s']:,.0f} "
             f"| {share(r['share_env'])} | {share(r['share_forward'])} | {share(r['share_update'])} "
             f"| {bound(r)} | {r['compile_s']:.0f} |"
