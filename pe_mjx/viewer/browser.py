@@ -295,9 +295,95 @@ def team_pixels(image: np.ndarray) -> dict[str, np.ndarray]:
     return {"pursuer": red, "evader": blue}
 
 
+class ConnectionProxy:
+    """A localhost TCP proxy in front of a viewer, for what a network does to a tab: `drop()`
+    cuts every connection through it (a tab's websocket included; viser's client then
+    reconnects), and `handshake_delay` holds each websocket handshake that many seconds before
+    it reaches the server (a slow or tunnelled link). Open the page at `url`: viser's client
+    derives its websocket address from the page's, so the websocket goes through the proxy too.
+    `handshakes` counts the websocket handshakes seen. Runs its own event loop in a thread."""
+
+    def __init__(self, port: int, handshake_delay: float = 0.0):
+        import asyncio
+        import threading
+
+        self.handshake_delay = handshake_delay
+        self.handshakes = 0
+        self._target = port
+        self._writers: set[Any] = set()
+        self._loop = asyncio.new_event_loop()
+        started = threading.Event()
+        box: dict[str, Any] = {}
+
+        def run() -> None:
+            asyncio.set_event_loop(self._loop)
+            server = self._loop.run_until_complete(
+                asyncio.start_server(self._handle, "127.0.0.1", 0)
+            )
+            box["port"] = server.sockets[0].getsockname()[1]
+            started.set()
+            self._loop.run_forever()
+            server.close()
+
+        self._thread = threading.Thread(target=run, name="connection-proxy", daemon=True)
+        self._thread.start()
+        started.wait()
+        self.url = f"http://127.0.0.1:{box['port']}/"
+
+    async def _handle(self, client_reader: Any, client_writer: Any) -> None:
+        import asyncio
+
+        head = await client_reader.read(65536)
+        if b"upgrade: websocket" in head.lower():
+            self.handshakes += 1
+            await asyncio.sleep(self.handshake_delay)
+        try:
+            server_reader, server_writer = await asyncio.open_connection("127.0.0.1", self._target)
+        except OSError:
+            client_writer.close()
+            return
+        self._writers |= {client_writer, server_writer}
+        server_writer.write(head)
+
+        async def pipe(reader: Any, writer: Any) -> None:
+            with contextlib.suppress(OSError):
+                while data := await reader.read(65536):
+                    writer.write(data)
+                    await writer.drain()
+            writer.close()
+            self._writers.discard(writer)
+
+        await asyncio.gather(pipe(client_reader, server_writer), pipe(server_reader, client_writer))
+
+    def _cut(self) -> None:
+        for writer in tuple(self._writers):
+            writer.transport.abort()
+        self._writers.clear()
+
+    def drop(self) -> None:
+        """Cuts every open connection, as a network outage would."""
+        self._loop.call_soon_threadsafe(self._cut)
+
+    def close(self) -> None:
+        """Cuts every connection and stops. The loop turns once more after the cut: an aborted
+        transport closes its socket only then, and a socket left open would keep its client on
+        the server."""
+        import asyncio
+
+        async def shut() -> None:
+            self._cut()
+            await asyncio.sleep(0.1)
+
+        with contextlib.suppress(Exception):
+            asyncio.run_coroutine_threadsafe(shut(), self._loop).result(timeout=5)
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(timeout=5)
+
+
 __all__ = [
     "Browser",
     "BrowserError",
+    "ConnectionProxy",
     "Page",
     "find_chromium",
     "scene_region",

@@ -18,7 +18,7 @@ import viser
 from PIL import Image
 
 from pe_mjx.viewer import start_viewer
-from tests.viewer.browser import BrowserError
+from tests.viewer.browser import BrowserError, ConnectionProxy
 from tests.viewer.viewer_helpers import (
     ForgedClient,
     gui_uuid,
@@ -31,20 +31,27 @@ from tests.viewer.viewer_helpers import (
 RENDER_TIMEOUT = 90.0
 
 
-def open_viewer(browser, url: str):
-    """Opens the viewer in a new tab, brought to the front (viser's client retries a dropped
-    websocket only while `document.hasFocus()`; headless Chromium reports the focus on every
-    tab, checked 2026-12-06, so this matters for a headed browser only), and waits for a frame
-    with both teams. A timeout says what the page showed: the team pixels of its last
-    screenshot and its text."""
-    page = browser.new_page(url)
+def open_viewer(browser, viewer, url: str | None = None):
+    """Opens `viewer` (at `url`, its own by default) in a new tab, brought to the front
+    (viser's client retries a dropped websocket only while `document.hasFocus()`; headless
+    Chromium reports the focus on every tab, checked 2026-12-06, so this matters for a headed
+    browser only), and waits for the page to hold the viewer's GUI (the legend: a page that
+    never connected shows viser's bare world axes, whose red and blue would pass for both
+    teams) and then a frame with both teams. A timeout says what the page showed (the team
+    pixels of its last screenshot, its text) and what the server saw (its clients, the frames
+    it streamed), which tell apart a page cut off from the server and one that draws late."""
+    page = browser.new_page(url or viewer.url)
     page.page.bring_to_front()
     try:
+        page.wait_for("document.body.innerText.includes('incapacitated')", timeout=RENDER_TIMEOUT)
         image = page.wait_for_image(shows_both_teams, timeout=RENDER_TIMEOUT)
     except BrowserError as err:
         counts = team_counts(page.screenshot())
         text = " ".join(str(page.evaluate("document.body.innerText")).split())[:300]
-        raise AssertionError(f"{err}; team pixels {counts}; page text: {text!r}") from None
+        raise AssertionError(
+            f"{err}; team pixels {counts}; server: {viewer.num_clients()} clients, "
+            f"{viewer.frames_streamed} frames streamed; page text: {text!r}"
+        ) from None
     return page, image
 
 
@@ -122,7 +129,7 @@ def test_chromium_renders_webgl_in_software_and_reports_page_errors(browser):
 
 
 def test_page_shows_both_teams(browser, live_viewer, tmp_path):
-    page, image = open_viewer(browser, live_viewer.url)
+    page, image = open_viewer(browser, live_viewer)
     try:
         counts = team_counts(image)
         assert counts["pursuer"] >= 20 and counts["evader"] >= 20, counts
@@ -135,7 +142,7 @@ def test_page_shows_both_teams(browser, live_viewer, tmp_path):
 
 def test_robots_move_while_playing_and_stop_when_paused_by_click(browser, live_viewer):
     set_playing(live_viewer, True)
-    page, _ = open_viewer(browser, live_viewer.url)
+    page, _ = open_viewer(browser, live_viewer)
     try:
         assert moved(page) > 50, "robots did not move while playing"
         # A real mouse click in the browser.
@@ -156,7 +163,7 @@ def test_robots_move_while_playing_and_stop_when_paused_by_click(browser, live_v
 
 def test_step_button_advances_one_step(browser, live_viewer):
     set_playing(live_viewer, True)  # paused, both evaders may be down: no blue to wait for
-    page, _ = open_viewer(browser, live_viewer.url)
+    page, _ = open_viewer(browser, live_viewer)
     try:
         set_playing(live_viewer, False)
         time.sleep(0.3)
@@ -179,8 +186,8 @@ def test_step_button_advances_one_step(browser, live_viewer):
 
 def test_two_tabs_then_one_closes_and_one_reloads(browser, live_viewer):
     set_playing(live_viewer, True)
-    first, _ = open_viewer(browser, live_viewer.url)
-    second, _ = open_viewer(browser, live_viewer.url)
+    first, _ = open_viewer(browser, live_viewer)
+    second, _ = open_viewer(browser, live_viewer)
     try:
         wait_until(lambda: live_viewer.num_clients() == 2, timeout=20, what="two clients")
         assert moved(first) > 50 and moved(second) > 50
@@ -196,15 +203,36 @@ def test_two_tabs_then_one_closes_and_one_reloads(browser, live_viewer):
         first.close()
         second.close()
     # A tab closing never stops the server: a new one still gets the scene.
-    third, _ = open_viewer(browser, live_viewer.url)
+    third, _ = open_viewer(browser, live_viewer)
     third.close()
+
+
+def test_a_tab_whose_connection_drops_reconnects_and_plays_on(browser, live_viewer):
+    """A network outage cuts the tab's websocket (a proxy between the two drops it): viser's
+    client connects again, the server sends it the scene again, and the page plays on."""
+    set_playing(live_viewer, True)
+    proxy = ConnectionProxy(live_viewer.port)
+    page = None
+    try:
+        page, _ = open_viewer(browser, live_viewer, proxy.url)
+        wait_until(lambda: live_viewer.num_clients() == 1, timeout=20, what="the tab")
+        handshakes = proxy.handshakes
+        proxy.drop()
+        wait_until(lambda: proxy.handshakes > handshakes, timeout=30, what="a new handshake")
+        wait_until(lambda: live_viewer.num_clients() == 1, timeout=30, what="the tab back")
+        page.wait_for_image(shows_both_teams, timeout=RENDER_TIMEOUT)
+        assert moved(page) > 50, "the page does not play after reconnecting"
+    finally:
+        if page is not None:
+            page.close()
+        proxy.close()
 
 
 def test_policy_paths_outside_the_roots_are_refused_alike_in_the_page(browser, live_viewer, capfd):
     """A missing path, an existing system directory and a relative escape get the same error
     (the page never tells which paths exist on the server); the server keeps running."""
     set_playing(live_viewer, True)
-    page, _ = open_viewer(browser, live_viewer.url)
+    page, _ = open_viewer(browser, live_viewer)
     messages = []
     try:
         for spec in ("/no/such/run", "/etc", "../../../../.."):
@@ -248,7 +276,7 @@ def check_recording_pages(browser, static_server, viser_path: Path, html_path: P
 
 def test_recording_exports_open_in_the_browser(browser, live_viewer, static_server, tmp_path):
     set_playing(live_viewer, True)
-    page, _ = open_viewer(browser, live_viewer.url)
+    page, _ = open_viewer(browser, live_viewer)
     try:
         page.click_text("Start recording")
         wait_until(lambda: live_viewer.recording, timeout=10, what="recording")
@@ -269,7 +297,7 @@ def test_replay_time_slider_and_export(browser, trajectory, static_server, tmp_p
         replay=trajectory, port=0, speed=10.0, verbose=False, record_dir=tmp_path / "rec"
     )
     try:
-        page, _ = open_viewer(browser, viewer.url)
+        page, _ = open_viewer(browser, viewer)
         wait_until(lambda: viewer.source.index > 3, timeout=20, what="replay to play")
         click_until(page, "Pause", lambda: not viewer.playing, "the Pause click")
         text = page.evaluate("document.body.innerText")
@@ -292,7 +320,7 @@ def test_replay_time_slider_and_export(browser, trajectory, static_server, tmp_p
 
 def test_training_view_shows_the_latest_policy(browser, tiny_run):
     viewer = tiny_run.viewer
-    page, _ = open_viewer(browser, viewer.url)
+    page, _ = open_viewer(browser, viewer)
     try:
         text = page.evaluate("document.body.innerText")
         assert f"iteration {tiny_run.iterations}" in text
@@ -318,7 +346,7 @@ def test_checkpoint_policies_attention_overlay_and_team_mismatch(browser, live_v
     same run as evader policy does not fit (it learned no evader): an error, the evaders keep
     theirs. Then the attention overlay of pursuer 0 is drawn."""
     set_playing(live_viewer, True)
-    page, _ = open_viewer(browser, live_viewer.url)
+    page, _ = open_viewer(browser, live_viewer)
     try:
         before = attention_pixels(page.screenshot())
         live_viewer.gui.pursuer_policy.value = str(tiny_run.run_dir)
@@ -431,7 +459,7 @@ def test_forged_messages_are_refused_and_a_fresh_browser_still_plays(browser, li
     # New connections are served: a bare websocket, then a real browser that plays.
     with ForgedClient(v.port) as client:
         assert client.receive(1.0) > 0
-    page, _ = open_viewer(browser, v.url)
+    page, _ = open_viewer(browser, v)
     try:
         wait_for_text(page, "refused", timeout=30, what="the refusal in the page")
         assert moved(page) > 50, "the fresh page does not play"
@@ -444,7 +472,7 @@ def test_scene_controls_reset_and_apply(browser, live_viewer):
     running; a valid one (other counts, one arena) replaces it. Runs last: it changes the
     shared viewer's scene."""
     set_playing(live_viewer, True)
-    page, _ = open_viewer(browser, live_viewer.url)
+    page, _ = open_viewer(browser, live_viewer)
     try:
         live_viewer.gui.seed.value = 7
         page.click_text("Reset")
