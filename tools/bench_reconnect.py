@@ -28,7 +28,13 @@ from pathlib import Path
 import viser
 
 from pe_mjx.viewer import start_viewer
-from pe_mjx.viewer.browser import Browser, ConnectionProxy, scene_region, team_pixels
+from pe_mjx.viewer.browser import (
+    LIVE_VIEWER,
+    Browser,
+    ConnectionProxy,
+    scene_region,
+    team_pixels,
+)
 
 DELAYS = (0.0, 0.25, 0.5, 0.75, 0.9, 1.1, 1.5, 2.0)
 
@@ -79,16 +85,7 @@ def main() -> None:
     parser.add_argument("--budget", type=float, default=60.0, help="seconds to wait per step")
     parser.add_argument("--out", type=Path, default=Path("docs/bench_reconnect.json"))
     args = parser.parse_args()
-    viewer = start_viewer(
-        preset="4-1-2",
-        backend="kinematic",
-        pursuers="scripted",
-        evaders="random",
-        arenas=2,
-        port=0,
-        speed=15.0,
-        verbose=False,
-    )
+    viewer = start_viewer(**LIVE_VIEWER, port=0, verbose=False)
     rows = []
     try:
         with Browser.launch() as browser:

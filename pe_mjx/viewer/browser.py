@@ -48,6 +48,16 @@ CHROMIUM_ARGS = (
 )
 # Milliseconds: a loaded 2-core machine renders software WebGL slowly.
 ACTION_TIMEOUT_MS = 60_000
+LIVE_VIEWER = {
+    "preset": "4-1-2",
+    "backend": "kinematic",
+    "pursuers": "scripted",
+    "evaders": "random",
+    "arenas": 2,
+    "speed": 15.0,
+}
+"""`start_viewer` options of the live viewer the browser tests and `tools/bench_reconnect.py`
+look at: small, quick to compile, both teams on screen most of the time."""
 
 
 class BrowserError(RuntimeError):
@@ -381,6 +391,7 @@ class ConnectionProxy:
 
 
 __all__ = [
+    "LIVE_VIEWER",
     "Browser",
     "BrowserError",
     "ConnectionProxy",

@@ -13,6 +13,7 @@ import os
 from pe_mjx.viewer.browser import (
     ACTION_TIMEOUT_MS,
     CHROMIUM_ARGS,
+    LIVE_VIEWER,
     Browser,
     BrowserError,
     ConnectionProxy,
@@ -49,6 +50,7 @@ def require_chromium() -> str:
 __all__ = [
     "ACTION_TIMEOUT_MS",
     "CHROMIUM_ARGS",
+    "LIVE_VIEWER",
     "Browser",
     "BrowserError",
     "ConnectionProxy",

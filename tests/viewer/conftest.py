@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 
 from pe_mjx.trajectory import Trajectory
-from tests.viewer.browser import Browser, require_chromium
-from tests.viewer.viewer_helpers import LIVE_PRESET, synthetic_trajectory, wait_until
+from tests.viewer.browser import LIVE_VIEWER, Browser, require_chromium
+from tests.viewer.viewer_helpers import synthetic_trajectory, wait_until
 
 
 @pytest.fixture(scope="session")
@@ -35,13 +35,8 @@ def live_viewer(tmp_path_factory):
     from pe_mjx.viewer import start_viewer
 
     viewer = start_viewer(
-        preset=LIVE_PRESET,
-        backend="kinematic",
-        pursuers="scripted",
-        evaders="random",
-        arenas=2,
+        **LIVE_VIEWER,
         port=0,
-        speed=15.0,
         verbose=False,
         record_dir=tmp_path_factory.mktemp("recordings"),
         policy_roots=(tmp_path_factory.getbasetemp(),),

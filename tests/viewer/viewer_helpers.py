@@ -11,9 +11,9 @@ import numpy as np
 from pe_mjx.config import get_preset
 from pe_mjx.names import CAPTURE, WALL
 from pe_mjx.trajectory import Trajectory
-from tests.viewer.browser import scene_region, team_pixels
+from tests.viewer.browser import LIVE_VIEWER, scene_region, team_pixels
 
-LIVE_PRESET = "4-1-2"
+LIVE_PRESET = LIVE_VIEWER["preset"]
 
 
 def wait_until(predicate, timeout: float = 60.0, interval: float = 0.1, what: str = "condition"):
