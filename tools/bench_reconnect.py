@@ -18,30 +18,22 @@ gets back (the viewer's browser tests met a page that stopped updating once unde
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import viser
 
+from pe_mjx.bench import machine
 from pe_mjx.viewer import start_viewer
 from pe_mjx.viewer.browser import (
     LIVE_VIEWER,
     Browser,
     ConnectionProxy,
-    scene_region,
-    team_pixels,
+    shows_both_teams,
 )
 
 DELAYS = (0.0, 0.25, 0.5, 0.75, 0.9, 1.1, 1.5, 2.0)
-
-
-def _both_teams(page) -> bool:
-    masks = team_pixels(scene_region(page.screenshot()))
-    return all(int(m.sum()) >= 20 for m in masks.values())
 
 
 def _wait(predicate, budget: float) -> float | None:
@@ -57,7 +49,9 @@ def measure(viewer, browser: Browser, delay: float, budget: float) -> dict:
     proxy = ConnectionProxy(viewer.port, handshake_delay=delay)
     page = browser.new_page(proxy.url)
     try:
-        opened = _wait(lambda: viewer.num_clients() == 1 and _both_teams(page), budget)
+        opened = _wait(
+            lambda: viewer.num_clients() == 1 and shows_both_teams(page.screenshot()), budget
+        )
         if opened is None:
             return {"delay": delay, "first_connect": False}
         tries = proxy.handshakes
@@ -96,9 +90,7 @@ def main() -> None:
     finally:
         viewer.stop()
     result = {
-        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"),
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
-        "load_avg_1min": round(os.getloadavg()[0], 2),
+        "machine": machine(),
         "viser": viser.__version__,
         "budget_s": args.budget,
         "rows": rows,

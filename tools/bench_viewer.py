@@ -24,20 +24,18 @@ import time
 from pathlib import Path
 
 import jax
-import numpy as np
 from PIL import Image
 
 from pe_mjx.viewer import start_viewer
-from pe_mjx.viewer.browser import Browser, find_chromium, scene_region, team_pixels
+from pe_mjx.viewer.browser import (
+    Browser,
+    find_chromium,
+    shows_both_teams,
+)
 
 HIDE_NOTIFICATIONS = (
     "document.querySelectorAll('[class*=\"Notification-root\"]').forEach(e => e.remove()); true"
 )
-
-
-def shows_both_teams(image: np.ndarray) -> bool:
-    masks = team_pixels(scene_region(image))
-    return all(int(m.sum()) >= 20 for m in masks.values())
 
 
 def measure(args: argparse.Namespace, backend: str, browser: Browser, shot: Path | None) -> dict:

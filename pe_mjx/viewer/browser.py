@@ -21,11 +21,13 @@ and tools were written against:
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import io
 import os
 import re
 import shutil
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -305,6 +307,17 @@ def team_pixels(image: np.ndarray) -> dict[str, np.ndarray]:
     return {"pursuer": red, "evader": blue}
 
 
+def team_counts(image: np.ndarray) -> dict[str, int]:
+    """Pixels of each team's colour in the 3D view of a viewer screenshot."""
+    return {team: int(mask.sum()) for team, mask in team_pixels(scene_region(image)).items()}
+
+
+def shows_both_teams(image: np.ndarray, minimum: int = 20) -> bool:
+    """Whether the 3D view shows at least `minimum` pixels of each team's colour."""
+    counts = team_counts(image)
+    return counts["pursuer"] >= minimum and counts["evader"] >= minimum
+
+
 class ConnectionProxy:
     """A localhost TCP proxy in front of a viewer, for what a network does to a tab: `drop()`
     cuts every connection through it (a tab's websocket included; viser's client then
@@ -314,9 +327,6 @@ class ConnectionProxy:
     `handshakes` counts the websocket handshakes seen. Runs its own event loop in a thread."""
 
     def __init__(self, port: int, handshake_delay: float = 0.0):
-        import asyncio
-        import threading
-
         self.handshake_delay = handshake_delay
         self.handshakes = 0
         self._target = port
@@ -341,8 +351,6 @@ class ConnectionProxy:
         self.url = f"http://127.0.0.1:{box['port']}/"
 
     async def _handle(self, client_reader: Any, client_writer: Any) -> None:
-        import asyncio
-
         head = await client_reader.read(65536)
         if b"upgrade: websocket" in head.lower():
             self.handshakes += 1
@@ -378,7 +386,6 @@ class ConnectionProxy:
         """Cuts every connection and stops. The loop turns once more after the cut: an aborted
         transport closes its socket only then, and a socket left open would keep its client on
         the server."""
-        import asyncio
 
         async def shut() -> None:
             self._cut()
@@ -398,5 +405,7 @@ __all__ = [
     "Page",
     "find_chromium",
     "scene_region",
+    "shows_both_teams",
+    "team_counts",
     "team_pixels",
 ]

@@ -20,6 +20,8 @@ from pe_mjx.viewer.browser import (
     Page,
     find_chromium,
     scene_region,
+    shows_both_teams,
+    team_counts,
     team_pixels,
 )
 
@@ -58,5 +60,7 @@ __all__ = [
     "find_chromium",
     "require_chromium",
     "scene_region",
+    "shows_both_teams",
+    "team_counts",
     "team_pixels",
 ]

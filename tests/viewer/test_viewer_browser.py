@@ -18,13 +18,11 @@ import viser
 from PIL import Image
 
 from pe_mjx.viewer import start_viewer
-from tests.viewer.browser import BrowserError, ConnectionProxy
+from tests.viewer.browser import BrowserError, ConnectionProxy, shows_both_teams, team_counts
 from tests.viewer.viewer_helpers import (
     ForgedClient,
     gui_uuid,
     robots_mask,
-    shows_both_teams,
-    team_counts,
     wait_until,
 )
 

@@ -14,7 +14,8 @@ import zipfile
 import pytest
 
 from pe_mjx.trajectory import save
-from tests.viewer.viewer_helpers import shows_both_teams, synthetic_trajectory
+from tests.viewer.browser import shows_both_teams
+from tests.viewer.viewer_helpers import synthetic_trajectory
 
 CLI = [sys.executable, "-m", "pe_mjx.cli"]
 

@@ -27,15 +27,6 @@ def wait_until(predicate, timeout: float = 60.0, interval: float = 0.1, what: st
         time.sleep(interval)
 
 
-def team_counts(image: np.ndarray) -> dict[str, int]:
-    return {team: int(mask.sum()) for team, mask in team_pixels(scene_region(image)).items()}
-
-
-def shows_both_teams(image: np.ndarray, minimum: int = 20) -> bool:
-    counts = team_counts(image)
-    return counts["pursuer"] >= minimum and counts["evader"] >= minimum
-
-
 def robots_mask(image: np.ndarray) -> np.ndarray:
     masks = team_pixels(scene_region(image))
     return masks["pursuer"] | masks["evader"]
