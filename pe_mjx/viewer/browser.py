@@ -22,6 +22,7 @@ and tools were written against:
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import io
 import os
@@ -143,24 +144,45 @@ class Browser:
         self.close()
 
 
+CONSOLE_LINES = 200
+"""Console messages a `Page` keeps (the latest)."""
+CONNECTION_EVENTS = ("Connecting to", "Connected!", "Disconnected!")
+"""How viser's websocket worker logs its connection (viser 1.1.1's client): its console lines
+reach the page's console, so `Page.connection_log` tells when a tab lost and regained the
+server."""
+
+
 class Page:
     """One browser tab (`page` is Playwright's). `errors` collects, as text, what the page logged
-    with console.error, the exceptions it did not catch and a renderer crash, in order; Playwright
-    hands page events over while one of its calls runs (any method here)."""
+    with console.error, the exceptions it did not catch and a renderer crash, in order; `console`
+    keeps the latest console messages of the page and its workers as (seconds since the tab
+    opened, text). Playwright hands page events over while one of its calls runs (any method
+    here)."""
 
     def __init__(self, browser: Browser, page: Any):
         self.browser = browser
         self.page = page
         self.closed = False
         self.errors: list[str] = []
+        self.console: collections.deque[tuple[float, str]] = collections.deque(maxlen=CONSOLE_LINES)
+        self._opened = time.monotonic()
         self._cdp: Any = None
         page.on("console", self._on_console)
         page.on("pageerror", lambda error: self.errors.append(f"pageerror: {error}"))
         page.on("crash", lambda _: self.errors.append("crash: the tab's renderer crashed"))
 
     def _on_console(self, message: Any) -> None:
+        self.console.append((round(time.monotonic() - self._opened, 2), message.text))
         if message.type == "error":
             self.errors.append(f"console.error: {message.text}")
+
+    def connection_log(self) -> list[str]:
+        """The tab's websocket events so far ("12.3 s Connected! ws://..."), oldest first."""
+        return [
+            f"{t} s {text[:80]}"
+            for t, text in self.console
+            if any(text.startswith(event) for event in CONNECTION_EVENTS)
+        ]
 
     def _error(self, what: str, err: Exception) -> BrowserError:
         message = getattr(err, "message", str(err)).splitlines()[0]
