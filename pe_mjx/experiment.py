@@ -35,6 +35,7 @@ from pe_mjx.names import BACKENDS, BUILTIN_POLICIES, ENCODERS, TEAMS, other_team
 Encoder = Literal["mix", "mean", "birnn", "mlp"]
 Backend = Literal["mjx", "kinematic"]
 Team = Literal["pursuer", "evader"]
+PoolTeam = Literal["pursuer", "evader", "both"]
 assert Encoder.__args__ == ENCODERS  # type: ignore[attr-defined]
 assert Backend.__args__ == BACKENDS  # type: ignore[attr-defined]
 assert Team.__args__ == TEAMS  # type: ignore[attr-defined]
@@ -229,12 +230,17 @@ class TeamTraining:
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PoolConfig:
-    """One learned team trains against a pool of opponents (`pe_mjx.ppo.pool`): the co-evolving
+    """A learned team trains against a pool of opponents (`pe_mjx.ppo.pool`): the co-evolving
     opponent's current policy, its own past snapshots and fixed builtin policies, each arena's
-    member drawn at every reset with these probabilities."""
+    member drawn at every reset with these probabilities. With `team="both"` each team faces a
+    pool of the other's snapshots with these settings; an arena where both teams drew a
+    non-current opponent keeps one of the two (a coin), so that every arena teaches at least one
+    team: each team then meets a non-current member with probability q(1 + p)/2, where p is
+    `p_current` and q = 1 - p."""
 
-    team: Team | None = None
-    """The learned team that faces the pool (its opponent must learn too); None: no pool."""
+    team: PoolTeam | None = None
+    """The learned team that faces the pool, or both (the opponent must learn too); None: no
+    pool."""
     snapshot_every: int = 10
     """Snapshot the opponent's parameters every this many iterations (the first at iteration 0)."""
     keep: int = 4
@@ -276,6 +282,13 @@ class PoolConfig:
     @property
     def on(self) -> bool:
         return self.team is not None
+
+    @property
+    def teams(self) -> tuple[str, ...]:
+        """The learned teams that face a pool, in `TEAMS` order (none when off)."""
+        if self.team is None:
+            return ()
+        return TEAMS if self.team == "both" else (self.team,)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

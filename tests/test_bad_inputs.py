@@ -351,6 +351,8 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
         "--pool.p-current", "0.5")  # fmt: skip
     add("train-pool-fixed-opponent", "train", *TINY_TRAIN, *out, "--pool.team", "pursuer",
         "--evader.policy", "scripted")  # fmt: skip
+    add("train-pools-fixed-opponent", "train", *TINY_TRAIN, *out, "--pool.team", "both",
+        "--pursuer.policy", "scripted")  # fmt: skip
     add("train-unknown-flag", "train", *TINY_TRAIN, *out, "--learning-rate", "1e-3")
     add("train-missing-value", "train", *TINY_TRAIN, *out, "--ppo.gamma")
     add("train-view-value", "train", *TINY_TRAIN, *out, "--view=maybe")

@@ -129,7 +129,8 @@ def _pool_label(config: ExperimentConfig) -> str:
     if not pool.on:
         return "off"
     return (
-        f"{pool.team}s vs current {pool.p_current:g}, {pool.keep} snapshots "
+        f"{'both teams' if pool.team == 'both' else pool.team + 's'} vs current "
+        f"{pool.p_current:g}, {pool.keep} snapshots "
         f"{pool.p_snapshots:g}, {'/'.join(pool.fixed) or '-'} {pool.p_fixed:g}"
     )
 

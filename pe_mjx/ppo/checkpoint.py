@@ -387,14 +387,17 @@ def _fall_back(run_dir: Path, err: Exception, read: Any, fallback: bool) -> tupl
 
 def _require_same_pool(run_dir: Path, step: int, trainer: Trainer) -> None:
     """A `CheckpointError` (one line) when checkpoint `step` was trained with an opponent pool
-    and `trainer` has none, or the other way round (runs saved before pools had none)."""
+    and `trainer` has none, the other way round (runs saved before pools had none), or with the
+    pool on another team (their states differ)."""
     experiment = read_meta(run_dir, step).get("experiment") or {}
     saved = (experiment.get("pool") or {}).get("team")
-    if (saved is None) != (trainer.pool is None):
+    mine = trainer.config.pool.team
+    if saved != mine:
         had = f"with an opponent pool (pool.team {saved})" if saved else "without a pool"
+        has = f"has pool.team {mine}" if mine else "has none"
         raise CheckpointError(
-            f"checkpoint {step} in {run_dir} was trained {had}, this trainer "
-            f"{'has one' if saved is None else 'has none'}: resume it with its saved config"
+            f"checkpoint {step} in {run_dir} was trained {had}, this trainer {has}: resume it "
+            "with its saved config"
         )
 
 

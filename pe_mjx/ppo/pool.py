@@ -1,9 +1,11 @@
-"""Opponent pools: one learned team trains against the co-evolving opponent, its past snapshots
-and fixed policies, each arena's opponent drawn per episode (`ExperimentConfig.pool`).
+"""Opponent pools: a learned team trains against the co-evolving opponent, its past snapshots
+and fixed policies, each arena's opponent drawn per episode (`ExperimentConfig.pool`); with
+`pool.team = "both"` each team faces such a pool of the other's.
 
 Members are numbered per arena: 0 the opponent's current policy, 1..keep its snapshot slots,
-keep+1.. the fixed policies in `PoolConfig.fixed` order. A `PoolState` lives in the
-`TrainState` (so the checkpoint holds it and a resume continues it exactly):
+keep+1.. the fixed policies in `PoolConfig.fixed` order. A `PoolState` per pool team lives in the
+`TrainState` (`pool`, keyed by the team that faces it; so the checkpoint holds it and a resume
+continues it exactly):
 
   * `params` / `normalizer`: the opponent's parameters and observation statistics at each
     snapshot, stacked [keep, ...], a ring buffer. The first snapshot is the opponent's initial
@@ -29,6 +31,12 @@ transitions its current policy produced: in arenas where a snapshot or a fixed p
 its transitions are invalid (masked out of its losses, GAE and observation statistics), since
 PPO's ratio and advantages are only meaningful for data of the policy being updated.
 
+Both teams (`team = "both"`): two pools, each with the stream above folded with its team's
+index, drawn independently; then, in an arena where both drew a non-current member, a coin from
+the evader pool's stream keeps one of them and gives the other side its current opponent
+(`settle`), so no arena is lost to both learners. Metrics are named per team
+(`pool/<team>_vs_<kind>/...`); with one team they stay `pool/vs_<kind>/...`.
+
 Not yet: shipped or run-directory policies as fixed members (builtins only).
 """
 
@@ -42,6 +50,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pe_mjx.experiment import PoolConfig
+from pe_mjx.names import other_team
 from pe_mjx.networks import sample_actions
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.inference import normalize_obs
@@ -60,16 +69,19 @@ class PoolState:
 
 
 class Pool:
-    """The pool of `config` for the learned team `config.team`, whose opponent's network is
-    `network` (`apply(params, obs) -> (logits, value)`) and fixed members `fixed`."""
+    """The pool of `config` for the learned team `team`, whose opponent's network is `network`
+    (`apply(params, obs) -> (logits, value)`) and fixed members `fixed`."""
 
-    def __init__(self, config: PoolConfig, network: Any, fixed: dict[str, Policy]):
+    def __init__(self, config: PoolConfig, team: str, network: Any, fixed: dict[str, Policy]):
         self.config = config
+        self.team = team
+        self.opponent = other_team(team)
         self.network = network
         self.fixed = [fixed[name] for name in config.fixed]
         self.keep = config.keep
         self.kinds = ("current", "snapshot", *config.fixed)
         """Member kinds, as the metrics name them (`pool/vs_<kind>/...`)."""
+        self.prefix = f"pool/{team}_vs_" if config.team == "both" else "pool/vs_"
 
     def kind_of(self, member: jax.Array) -> jax.Array:
         """Index into `kinds` of each member [...]."""
@@ -198,8 +210,8 @@ class Pool:
           * `pool/vs_<kind>/<team>_reward`: the pool team's reward per step against it.
 
         NaN where there is nothing to average (the loggers skip it)."""
-        team = self.config.team
-        kind = self.kind_of(data["pool_member"])
+        team = self.team
+        kind = self.kind_of(data["pool_member"][team])
         done = data["done"].astype(jnp.float32)
         success = data["metrics"]["episode/success_rate"]
         team_reward = data["team_reward"][team]
@@ -208,13 +220,13 @@ class Pool:
         for k, name in enumerate(self.kinds):
             played = (kind == k).astype(jnp.float32)
             ended = jnp.sum(done * played)
-            out[f"pool/vs_{name}/episodes"] = jnp.where(
+            out[f"{self.prefix}{name}/episodes"] = jnp.where(
                 finished > 0, ended / jnp.maximum(finished, 1.0), jnp.nan
             )
-            out[f"pool/vs_{name}/success_rate"] = jnp.where(
+            out[f"{self.prefix}{name}/success_rate"] = jnp.where(
                 ended > 0, jnp.sum(success * done * played) / jnp.maximum(ended, 1.0), jnp.nan
             )
-            out[f"pool/vs_{name}/{team}_reward"] = jnp.where(
+            out[f"{self.prefix}{name}/{team}_reward"] = jnp.where(
                 jnp.sum(played) > 0,
                 jnp.sum(team_reward * played) / jnp.maximum(jnp.sum(played), 1.0),
                 jnp.nan,
@@ -224,10 +236,10 @@ class Pool:
     def eval_opponents(self, snapshot: Policy) -> list[tuple[str, str, Policy]]:
         """(team, name, opponent) pairs the in-training evaluation adds: the newest `snapshot`
         and each fixed member but scripted (which every learned team already meets)."""
-        pairs = [(self.config.team, "snapshot", snapshot)]
+        pairs = [(self.team, "snapshot", snapshot)]
         for name, policy in zip(self.config.fixed, self.fixed, strict=True):
             if name != "scripted":
-                pairs.append((self.config.team, name, policy))
+                pairs.append((self.team, name, policy))
         return pairs
 
 
@@ -242,8 +254,30 @@ def opponent_mask(valid: jax.Array, member: jax.Array) -> jax.Array:
     return valid & (member == 0)[:, None]
 
 
-def make_pool(config: PoolConfig, network: Any, make_fixed: Callable[[str], Policy]) -> Pool | None:
-    """The pool of `config`, or None when it is off."""
-    if not config.on:
-        return None
-    return Pool(config, network, {name: make_fixed(name) for name in config.fixed})
+def settle(states: dict[str, PoolState]) -> dict[str, PoolState]:
+    """With both teams on pools: in each arena where both drew a non-current member, a coin
+    (from the evader pool's stream, which then moves on) keeps the pursuers' draw or the
+    evaders', and the other side plays its current opponent. One pool: `states` as they are."""
+    if len(states) < 2:
+        return states
+    pursuer, evader = states["pursuer"], states["evader"]
+    rng, key = jax.random.split(evader.rng)
+    both = (pursuer.member != 0) & (evader.member != 0)
+    keep_pursuer = jax.random.bernoulli(key, 0.5, both.shape)
+    return {
+        "pursuer": pursuer.replace(member=jnp.where(both & ~keep_pursuer, 0, pursuer.member)),
+        "evader": evader.replace(member=jnp.where(both & keep_pursuer, 0, evader.member), rng=rng),
+    }
+
+
+def make_pools(
+    config: PoolConfig, networks: dict[str, Any], make_fixed: Callable[[str, str], Policy]
+) -> dict[str, Pool]:
+    """The pools of `config` keyed by the team that faces each (none when it is off): the
+    opponent's network from `networks`, fixed members from `make_fixed(name, opponent)`."""
+    pools = {}
+    for team in config.teams:
+        opponent = other_team(team)
+        fixed = {name: make_fixed(name, opponent) for name in config.fixed}
+        pools[team] = Pool(config, team, networks[opponent], fixed)
+    return pools

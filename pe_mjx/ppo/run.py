@@ -118,9 +118,12 @@ def warm_start(trainer: Trainer, state: TrainState, variables: dict[str, Any]) -
             params=stored["params"], opt_state=opt_state, normalizer=stored["normalizer"]
         )
     pool = state.pool
-    if pool is not None and trainer.pool_opponent in variables:  # its first snapshot too
-        stored = teams[trainer.pool_opponent]
-        pool = trainer.pool.refill(pool, stored.params, stored.normalizer)
+    if pool is not None:
+        pool = dict(pool)
+        for team, team_pool in trainer.pools.items():
+            if team_pool.opponent in variables:  # its first snapshot too
+                stored = teams[team_pool.opponent]
+                pool[team] = team_pool.refill(pool[team], stored.params, stored.normalizer)
         pool = jax.device_put(pool, trainer.state_shardings(state).pool)
     return state.replace(teams=teams, pool=pool)
 

@@ -14,8 +14,8 @@ training iteration, jitted whole, reads top to bottom:
   4. `update_epochs` passes of clipped PPO over shuffled minibatches, per learned team
      (Brax `gradient_update_fn`, optax Adam with global-norm clipping and a linear schedule).
 
-With `ExperimentConfig.pool` one learned team plays each arena against a member of an opponent
-pool instead (`pe_mjx.ppo.pool`); off by default, when nothing of it is built or traced.
+With `ExperimentConfig.pool` a learned team (or both) plays each arena against a member of an
+opponent pool instead (`pe_mjx.ppo.pool`); off by default, when nothing of it is built or traced.
 
 Data parallelism: the env batch axis is sharded over every device of a `jax.sharding.Mesh`
 (all local devices, or all processes' devices after `jax.distributed.initialize`); parameters
@@ -53,7 +53,7 @@ from pe_mjx.policy.inference import (
 )
 from pe_mjx.policy.scripted import make_policy
 from pe_mjx.ppo.losses import TeamBatch, ppo_loss, team_targets
-from pe_mjx.ppo.pool import POOL_STREAM, PoolState, make_pool, opponent_mask
+from pe_mjx.ppo.pool import POOL_STREAM, PoolState, make_pools, opponent_mask, settle
 
 
 @struct.dataclass
@@ -88,7 +88,9 @@ def _critic_first(loss_fn: Callable[..., Any], live: jax.Array) -> Callable[...,
 @struct.dataclass
 class TrainState:
     teams: dict[str, TeamState]
-    pool: PoolState | None  # None (no leaves) without a pool: the state is as it always was
+    # Each pool's state keyed by the team that faces it; None (no leaves) without a pool: the
+    # state is as it always was.
+    pool: dict[str, PoolState] | None
     env_state: State  # batched [num_envs]
     rng: jax.Array
     iteration: jax.Array  # int32 []
@@ -131,13 +133,14 @@ class Trainer:
                 )
             self.fixed[team] = make_policy(spec, self.env_config, team)
         self.scripted = {t: make_policy("scripted", self.env_config, t) for t in TEAMS}
-        pool_team = config.pool.team
-        self.pool_opponent = None if pool_team is None else other_team(pool_team)
-        self.pool = make_pool(
+        self.pools = make_pools(
             config.pool,
-            self.networks.get(self.pool_opponent),
-            lambda name: make_policy(name, self.env_config, self.pool_opponent),
+            self.networks,
+            lambda name, opponent: make_policy(name, self.env_config, opponent),
         )
+        """The opponent pools keyed by the team that faces each (`pe_mjx.ppo.pool`)."""
+        self.pool_of = {pool.opponent: pool for pool in self.pools.values()}
+        """The same pools keyed by the team whose policy they stand in for."""
         self.mesh = mesh or jax.sharding.Mesh(np.array(jax.devices()), ("data",))
         n_dev = self.mesh.devices.size
         if config.ppo.num_envs % n_dev:
@@ -195,9 +198,12 @@ class Trainer:
             teams=jax.tree.map(lambda _: self.replicated, state.teams),
             pool=None
             if state.pool is None
-            else jax.tree.map(lambda _: self.replicated, state.pool).replace(
-                member=self.batch_sharding
-            ),
+            else {
+                team: jax.tree.map(lambda _: self.replicated, pool).replace(
+                    member=self.batch_sharding
+                )
+                for team, pool in state.pool.items()
+            },
             rng=self.replicated,
             iteration=self.replicated,
             env_steps=self.replicated,
@@ -224,11 +230,16 @@ class Trainer:
                 normalizer=init_normalizer(obs),
             )
         pool = None
-        if self.pool is not None:
-            opponent = teams[self.pool_opponent]
-            pool = self.pool.init(
-                pool_rng, opponent.params, opponent.normalizer, self.config.ppo.num_envs
-            )
+        if self.pools:
+            pool = {}
+            for i, (team, team_pool) in enumerate(self.pools.items()):
+                # One pool: its stream as ever; both: each folded with its index.
+                key = pool_rng if len(self.pools) == 1 else jax.random.fold_in(pool_rng, i)
+                opponent = teams[team_pool.opponent]
+                pool[team] = team_pool.init(
+                    key, opponent.params, opponent.normalizer, self.config.ppo.num_envs
+                )
+            pool = settle(pool)
         state = TrainState(
             teams=teams,
             pool=pool,
@@ -246,12 +257,12 @@ class Trainer:
         teams: dict[str, TeamState],
         obs: dict[str, dict[str, jax.Array]],
         rng: jax.Array,
-        pool: PoolState | None = None,
+        pool: dict[str, PoolState] | None = None,
         raw_obs: dict[str, dict[str, jax.Array]] | None = None,
     ) -> tuple[dict[str, jax.Array], dict[str, dict[str, jax.Array]]]:
         """Actions for both teams on batched obs [B, A, ...] (a learned team's already in its
         network's length unit: `_inputs`; `raw_obs` as the env gives them); extras for learned
-        teams. With a `pool`, the pool team's opponent plays each arena's member."""
+        teams. With a `pool`, a pool team's opponent plays each arena's member."""
         actions, extras = {}, {}
         keys = dict(zip(TEAMS, jax.random.split(rng, len(TEAMS)), strict=True))
         for team in TEAMS:
@@ -261,8 +272,11 @@ class Trainer:
                 logits, value = self.networks[team].apply(
                     ts.params, normalize_obs(team_obs, ts.normalizer)
                 )
-                if pool is not None and team == self.pool_opponent:
-                    action = self.pool.act(pool, team_obs, raw_obs[team], logits, keys[team])
+                if pool is not None and team in self.pool_of:
+                    stand_in = self.pool_of[team]
+                    action = stand_in.act(
+                        pool[stand_in.team], team_obs, raw_obs[team], logits, keys[team]
+                    )
                 else:
                     action = sample_actions(logits, keys[team])
                 extras[team] = {"log_prob": log_prob(logits, action), "value": value}
@@ -280,8 +294,8 @@ class Trainer:
 
     def _rollout(
         self, ts: TrainState, rng: jax.Array
-    ) -> tuple[tuple[State, PoolState | None], dict[str, Any]]:
-        def step(carry: tuple[State, PoolState | None], key: jax.Array):
+    ) -> tuple[tuple[State, dict[str, PoolState] | None], dict[str, Any]]:
+        def step(carry: tuple[State, dict[str, PoolState] | None], key: jax.Array):
             env_state, pool = carry
             obs = dict(env_state.obs)
             for team in self.learned:  # once per step: acting and the stored data share it
@@ -293,8 +307,8 @@ class Trainer:
             for team in self.learned:
                 scale = self.config.team(team).reward_scale
                 valid = next_state.info["valid"][team]
-                if pool is not None and team == self.pool_opponent:
-                    valid = opponent_mask(valid, pool.member)  # its own policy's data only
+                if pool is not None and team in self.pool_of:  # its own policy's data only
+                    valid = opponent_mask(valid, pool[self.pool_of[team].team].member)
                 active_after = next_state.info["active"][team]
                 data[team] = {
                     "obs": obs[team],
@@ -312,8 +326,10 @@ class Trainer:
             data["team_reward"] = {t: jnp.sum(next_state.reward[t], axis=-1) for t in TEAMS}
             data["done"] = next_state.done
             if pool is not None:
-                data["pool_member"] = pool.member  # the members that played this step
-                pool = self.pool.redraw(pool, next_state.done > 0)
+                # The members that played this step, per pool team.
+                data["pool_member"] = {team: p.member for team, p in pool.items()}
+                ended = next_state.done > 0
+                pool = settle({t: self.pools[t].redraw(p, ended) for t, p in pool.items()})
             return (next_state, pool), data
 
         keys = jax.random.split(rng, self.config.ppo.unroll_length)
@@ -412,9 +428,14 @@ class Trainer:
             # The team's reward (summed over its agents, unscaled) per step and arena.
             metrics[f"reward/{team}/total"] = jnp.mean(reward)
         if pool is not None:
-            metrics.update(self.pool.metrics(data))
-            opponent = teams[self.pool_opponent]
-            pool = self.pool.snapshot(pool, opponent.params, opponent.normalizer, ts.iteration + 1)
+            snapshots = {}
+            for team, team_pool in self.pools.items():
+                metrics.update(team_pool.metrics(data))
+                opponent = teams[team_pool.opponent]
+                snapshots[team] = team_pool.snapshot(
+                    pool[team], opponent.params, opponent.normalizer, ts.iteration + 1
+                )
+            pool = snapshots
         steps = self.config.steps_per_iteration
         new_ts = TrainState(
             teams=teams,
@@ -450,22 +471,22 @@ class Trainer:
         episodes, and `<team>_return`, the team's episodic return (unscaled rewards summed over
         the episode, averaged over its agents and the episodes).
 
-        With a pool, also the pool team against its newest snapshot (`<team>_vs_snapshot`) and
+        With a pool, also each pool team against its newest snapshot (`<team>_vs_snapshot`) and
         against each fixed member other than scripted (`<team>_vs_random`), after the above
         (which therefore draw the keys they drew without a pool)."""
         metrics = {}
         current = self.policies(ts)
         pairs = [(team, "scripted", self.scripted[other_team(team)]) for team in self.learned]
-        if self.pool is not None:
-            opponent = self.pool_opponent
+        for team, team_pool in self.pools.items():
+            opponent = team_pool.opponent
             snapshot = learned_policy(
                 opponent,
                 self.networks[opponent],
                 self.network_configs[opponent],
-                self.pool.latest(ts.pool),
+                team_pool.latest(ts.pool[team]),
                 env_config=self.env_config,
             )
-            pairs += self.pool.eval_opponents(snapshot)
+            pairs += team_pool.eval_opponents(snapshot)
         for team, name, opponent_policy in pairs:
             other = other_team(team)
             pair = {team: current[team], other: opponent_policy}

@@ -1,7 +1,7 @@
 """Opponent pools: off by default and then changing nothing, draws with the stated
 probabilities, snapshots that play with their own parameters, every N iterations and the last M
 kept, the co-evolving opponent learning only from its own arenas, metrics and evaluation per
-member kind, and an exact resume from a checkpoint."""
+member kind, an exact resume from a checkpoint, and both teams on pools at once."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pe_mjx.experiment import ExperimentConfig, PoolConfig
 from pe_mjx.networks import sample_actions
 from pe_mjx.policy.inference import normalize_obs
 from pe_mjx.ppo import checkpoint
-from pe_mjx.ppo.pool import make_pool
+from pe_mjx.ppo.pool import Pool, PoolState, make_pools, settle
 from pe_mjx.ppo.run import warm_start
 from pe_mjx.ppo.run_files import resume_config
 from pe_mjx.ppo.train import Trainer
@@ -68,7 +68,7 @@ def pooled():
 def test_the_pool_is_off_by_default_and_adds_no_state():
     assert ExperimentConfig().pool == PoolConfig() and not PoolConfig().on
     trainer = Trainer(tiny(**MEAN))
-    assert trainer.pool is None and trainer.abstract_state().pool is None
+    assert trainer.pools == {} and trainer.abstract_state().pool is None
     # Configs saved before pools existed hold no "pool": they load with it off.
     saved = tiny(**MEAN).to_dict()
     del saved["pool"]
@@ -101,7 +101,7 @@ def test_members_are_drawn_with_the_stated_probabilities():
         p_snapshots=0.3,
         p_fixed=0.2,
     )
-    pool = make_pool(config, network=None, make_fixed=lambda name: name)
+    pool = make_pools(config, {"evader": None}, make_fixed=lambda name, _: name)["pursuer"]
     n = 200_000
     # 5 binomial standard deviations: a false failure has odds below 1e-6 per member.
     tol = 5 * np.sqrt(0.25 / n)
@@ -116,8 +116,8 @@ def test_snapshots_are_taken_every_n_iterations_and_the_last_m_kept(pooled):
     _, _, states, _ = pooled
     # Taken at iterations 0, 2 and 4 (every 2); the ring of 2 keeps those of 2 (slot 1) and 4
     # (slot 0, over iteration 0's).
-    assert [int(s.pool.count) for s in states] == [1, 1, 2, 2, 3, 3]
-    last = states[-1].pool
+    assert [int(s.pool["pursuer"].count) for s in states] == [1, 1, 2, 2, 3, 3]
+    last = states[-1].pool["pursuer"]
     for slot, iteration in ((0, 4), (1, 2)):
         evader = states[iteration].teams["evader"]
         kept = jax.tree.map(lambda x, s=slot: x[s], (last.params, last.normalizer))
@@ -129,9 +129,10 @@ def test_a_warm_started_opponent_is_the_first_snapshot(pooled):
     evader = states[-1].teams["evader"]
     stored = {"params": evader.params, "normalizer": evader.normalizer}
     warm = warm_start(trainer, states[0], {"evader": stored})
-    assert int(warm.pool.count) == 1
+    pool = warm.pool["pursuer"]
+    assert int(pool.count) == 1
     for slot in range(trainer.config.pool.keep):
-        kept = jax.tree.map(lambda x, s=slot: x[s], (warm.pool.params, warm.pool.normalizer))
+        kept = jax.tree.map(lambda x, s=slot: x[s], (pool.params, pool.normalizer))
         assert _max_diff(kept, (evader.params, evader.normalizer)) == 0.0
 
 
@@ -144,14 +145,15 @@ def test_a_snapshot_member_plays_with_its_own_parameters(pooled):
     bias = evader.params["params"]["policy_out"]["bias"]
     own = jax.tree.map(lambda x: x, evader.params)
     own["params"]["policy_out"]["bias"] = bias.at[0].add(30.0)
-    params = jax.tree.map(lambda s, x: s.at[1].set(x), state.pool.params, own)
-    pool = state.pool.replace(params=params, member=jnp.full_like(state.pool.member, 2))
+    before = state.pool["pursuer"]
+    params = jax.tree.map(lambda s, x: s.at[1].set(x), before.params, own)
+    pool = {"pursuer": before.replace(params=params, member=jnp.full_like(before.member, 2))}
     raw = state.env_state.obs
     obs = {t: trainer._inputs(t, raw[t]) for t in ("pursuer", "evader")}
     rng = jax.random.key(7)
     actions, _ = jax.jit(trainer._act)(state.teams, obs, rng, pool, raw)
     current, _ = jax.jit(trainer._act)(state.teams, obs, rng)
-    normalizer = jax.tree.map(lambda x: x[1], state.pool.normalizer)
+    normalizer = jax.tree.map(lambda x: x[1], before.normalizer)
     logits, _ = trainer.networks["evader"].apply(own, normalize_obs(obs["evader"], normalizer))
     evader_key = jax.random.split(rng, 2)[1]  # `_act` splits one key per team, in TEAMS order
     assert np.array_equal(actions["evader"], sample_actions(logits, evader_key))
@@ -162,7 +164,7 @@ def test_a_snapshot_member_plays_with_its_own_parameters(pooled):
 def test_the_opponent_learns_only_where_its_current_policy_played(pooled):
     trainer, _, states, _ = pooled
     _, data = jax.jit(trainer._rollout)(states[2], jax.random.key(1))
-    member = np.asarray(data["pool_member"])  # [T, B]
+    member = np.asarray(data["pool_member"]["pursuer"])  # [T, B]
     assert (member == 0).any() and (member != 0).any()
     evader_valid = np.asarray(data["evader"]["valid"]).any(axis=-1)
     assert not evader_valid[member != 0].any()
@@ -199,6 +201,83 @@ def test_the_pool_resumes_exactly_from_a_checkpoint(pooled, tmp_path):
     # A trainer without a pool refuses the checkpoint in one line.
     with pytest.raises(checkpoint.CheckpointError, match="trained with an opponent pool"):
         checkpoint.restore_train_state(tmp_path, Trainer(tiny(**MEAN)))
+
+
+@pytest.fixture(scope="module")
+def both():
+    """Both teams on pools (as `POOL`, p_current 0.4): the trainer and the states of
+    `ITERATIONS` iterations (index 0: the initial one) with their metrics."""
+    trainer = Trainer(tiny(**MEAN, **{**POOL, "pool.team": "both"}, env_steps=8 * 8 * ITERATIONS))
+    step = jax.jit(trainer.iteration)
+    states, metrics = [trainer.init()], []
+    for _ in range(ITERATIONS):
+        state, m = step(states[-1])
+        states.append(state)
+        metrics.append(jax.device_get(m))
+    return trainer, step, states, metrics
+
+
+def test_settling_keeps_one_non_current_side_per_arena():
+    """Where both pools drew a non-current member, a coin keeps one: every arena teaches at
+    least one team, and each team meets a non-current member with probability q(1 + p)/2."""
+    n, p = 200_000, 0.4
+    keys = jax.random.split(jax.random.key(3), 3)
+
+    def state(key, rng):
+        member = jnp.where(jax.random.uniform(key, (n,)) < p, 0, 1).astype(jnp.int32)
+        return PoolState(params=None, normalizer=None, count=jnp.int32(1), member=member, rng=rng)
+
+    drawn = {"pursuer": state(keys[0], keys[2]), "evader": state(keys[1], keys[2])}
+    settled = settle(drawn)
+    pursuer, evader = (np.asarray(settled[t].member) for t in ("pursuer", "evader"))
+    assert not ((pursuer != 0) & (evader != 0)).any()
+    # Only conflicts change, and only to the current member.
+    for team, member in (("pursuer", pursuer), ("evader", evader)):
+        before = np.asarray(drawn[team].member)
+        assert ((member == before) | (member == 0)).all()
+    tol = 5 * np.sqrt(0.25 / n)
+    for member in (pursuer, evader):
+        assert abs(np.mean(member != 0) - (1 - p) * (1 + p) / 2) < tol
+    assert settle({"pursuer": drawn["pursuer"]})["pursuer"] is drawn["pursuer"]
+
+
+def test_both_teams_play_their_pools_and_learn_only_from_their_own_arenas(both):
+    trainer, _, states, metrics = both
+    assert set(trainer.pools) == {"pursuer", "evader"}
+    assert all(isinstance(pool, Pool) for pool in trainer.pools.values())
+    # Each pool holds the other team's snapshots.
+    assert [int(s.pool["evader"].count) for s in states] == [1, 1, 2, 2, 3, 3]
+    last = states[-1].pool["evader"]
+    pursuer = states[4].teams["pursuer"]
+    kept = jax.tree.map(lambda x: x[0], (last.params, last.normalizer))
+    assert _max_diff(kept, (pursuer.params, pursuer.normalizer)) == 0.0
+    _, data = jax.jit(trainer._rollout)(states[2], jax.random.key(1))
+    member = {t: np.asarray(data["pool_member"][t]) for t in ("pursuer", "evader")}
+    assert not ((member["pursuer"] != 0) & (member["evader"] != 0)).any()
+    for pool_team, learner in (("pursuer", "evader"), ("evader", "pursuer")):
+        stood_in = member[pool_team] != 0  # the learner's policy was replaced there
+        assert stood_in.any()
+        assert not np.asarray(data[learner]["valid"]).any(axis=-1)[stood_in].any()
+    for team in ("pursuer", "evader"):
+        for kind in ("current", "snapshot", "random"):
+            assert all(f"pool/{team}_vs_{kind}/{team}_reward" in m for m in metrics)
+    found = jax.jit(trainer.evaluate)(states[-1], jax.random.key(0))
+    for pair in ("pursuer_vs_snapshot", "evader_vs_snapshot"):
+        assert np.isfinite(float(found[f"eval/{pair}/success_rate"]))
+
+
+def test_both_pools_resume_exactly_and_refuse_another_pool_team(both, tmp_path):
+    trainer, step, states, _ = both
+    checkpoint.save(tmp_path, trainer, states[2])
+    resumed = checkpoint.restore_train_state(tmp_path, trainer)
+    for _ in range(ITERATIONS - 2):
+        resumed, _ = step(resumed)
+    assert _max_diff(resumed.teams, states[-1].teams) == 0.0
+    assert _same(resumed.pool, states[-1].pool)
+    one = Trainer(tiny(**MEAN, **POOL, env_steps=8 * 8 * ITERATIONS))
+    refused = r"pool\.team both\), this trainer has pool\.team pursuer"
+    with pytest.raises(checkpoint.CheckpointError, match=refused):
+        checkpoint.restore_train_state(tmp_path, one)
 
 
 def test_resuming_cannot_switch_the_pool_on_or_off(tmp_path):
