@@ -50,12 +50,10 @@ def _same(a, b) -> bool:
     return all(np.array_equal(data(x), data(y), equal_nan=True) for x, y in pairs)
 
 
-@pytest.fixture(scope="module")
-def pooled():
-    """The pursuers against a pool (snapshots every 2 iterations, the last 2 kept, random as a
-    fixed member): the trainer, its jitted iteration, the state after each iteration (index 0:
-    the initial one) and each iteration's metrics."""
-    trainer = Trainer(tiny(**MEAN, **POOL, env_steps=8 * 8 * ITERATIONS, eval_envs=8))
+def _trained(**changes):
+    """The trainer of the tiny config with `changes`, its jitted iteration, the state after each
+    of `ITERATIONS` iterations (index 0: the initial one) and each iteration's metrics."""
+    trainer = Trainer(tiny(**MEAN, **changes, env_steps=8 * 8 * ITERATIONS, eval_envs=8))
     step = jax.jit(trainer.iteration)
     states, metrics = [trainer.init()], []
     for _ in range(ITERATIONS):
@@ -63,6 +61,13 @@ def pooled():
         states.append(state)
         metrics.append(jax.device_get(m))
     return trainer, step, states, metrics
+
+
+@pytest.fixture(scope="module")
+def pooled():
+    """The pursuers against a pool (snapshots every 2 iterations, the last 2 kept, random as a
+    fixed member), trained `ITERATIONS` iterations (`_trained`)."""
+    return _trained(**POOL)
 
 
 def test_the_pool_is_off_by_default_and_adds_no_state():
@@ -205,16 +210,8 @@ def test_the_pool_resumes_exactly_from_a_checkpoint(pooled, tmp_path):
 
 @pytest.fixture(scope="module")
 def both():
-    """Both teams on pools (as `POOL`, p_current 0.4): the trainer and the states of
-    `ITERATIONS` iterations (index 0: the initial one) with their metrics."""
-    trainer = Trainer(tiny(**MEAN, **{**POOL, "pool.team": "both"}, env_steps=8 * 8 * ITERATIONS))
-    step = jax.jit(trainer.iteration)
-    states, metrics = [trainer.init()], []
-    for _ in range(ITERATIONS):
-        state, m = step(states[-1])
-        states.append(state)
-        metrics.append(jax.device_get(m))
-    return trainer, step, states, metrics
+    """Both teams on pools (as `POOL`, p_current 0.4), trained `ITERATIONS` iterations."""
+    return _trained(**{**POOL, "pool.team": "both"})
 
 
 def test_settling_keeps_one_non_current_side_per_arena():
