@@ -138,9 +138,8 @@ class Trainer:
             self.networks,
             lambda name, opponent: make_policy(name, self.env_config, opponent),
         )
-        """The opponent pools keyed by the team that faces each (`pe_mjx.ppo.pool`)."""
-        self.pool_of = {pool.opponent: pool for pool in self.pools.values()}
-        """The same pools keyed by the team whose policy they stand in for."""
+        """The opponent pools keyed by the team that faces each (`pe_mjx.ppo.pool`): the pool
+        that stands in for team T's policy is `pools[other_team(T)]`."""
         self.mesh = mesh or jax.sharding.Mesh(np.array(jax.devices()), ("data",))
         n_dev = self.mesh.devices.size
         if config.ppo.num_envs % n_dev:
@@ -272,10 +271,10 @@ class Trainer:
                 logits, value = self.networks[team].apply(
                     ts.params, normalize_obs(team_obs, ts.normalizer)
                 )
-                if pool is not None and team in self.pool_of:
-                    stand_in = self.pool_of[team]
-                    action = stand_in.act(
-                        pool[stand_in.team], team_obs, raw_obs[team], logits, keys[team]
+                facing = other_team(team)  # the team whose pool stands in for this one
+                if pool is not None and facing in self.pools:
+                    action = self.pools[facing].act(
+                        pool[facing], team_obs, raw_obs[team], logits, keys[team]
                     )
                 else:
                     action = sample_actions(logits, keys[team])
@@ -307,8 +306,9 @@ class Trainer:
             for team in self.learned:
                 scale = self.config.team(team).reward_scale
                 valid = next_state.info["valid"][team]
-                if pool is not None and team in self.pool_of:  # its own policy's data only
-                    valid = opponent_mask(valid, pool[self.pool_of[team].team].member)
+                facing = other_team(team)
+                if pool is not None and facing in self.pools:  # its own policy's data only
+                    valid = opponent_mask(valid, pool[facing].member)
                 active_after = next_state.info["active"][team]
                 data[team] = {
                     "obs": obs[team],
