@@ -12,6 +12,10 @@ results.json), and the others are listed as left out. Writes `<out>/seeds.json` 
 evaluation's trials, with its 95% interval in the seed's results.md), their mean, the sample
 standard deviation over seeds and the range. The spread over seeds is the one that says how much
 a result depends on the training run; the per-trial intervals do not.
+
+With `--matrix` (for cross-play tables such as Table III, one `pe-mjx reproduce` per seed), seeds.md
+also gets the paper's layout: one matrix per metric in `--matrix`, evaders as rows and pursuers as
+columns in the order the labels first appear, each cell "mean ± std [lowest, highest]".
 """
 
 from __future__ import annotations
@@ -39,6 +43,8 @@ class Args:
     out: Path
     """Where seeds.json and seeds.md go."""
     title: str = "Mean and spread over seeds"
+    matrix: tuple[str, ...] = ()
+    """Metrics (of success_rate, per_evader_cost, ...) also written as evader x pursuer matrices."""
 
 
 SAME = ("preset", "trials", "seed", "backend")  # what every seed's evaluation must share
@@ -99,13 +105,7 @@ def markdown(rows: list[dict], title: str, sources: list[str], left_out: list, m
         "|---|---|" + "---|" * len(METRICS),
     ]
     for row in rows:
-        cells = []
-        for metric, (_, digits) in METRICS.items():
-            m = row[metric]
-            cells.append(
-                f"{m['mean']:.{digits}f} ± {m['std']:.{digits}f} "
-                f"[{m['min']:.{digits}f}, {m['max']:.{digits}f}]"
-            )
+        cells = [_cell(row[metric], digits) for metric, (_, digits) in METRICS.items()]
         lines.append(f"| {row['evader']} | {row['pursuer']} | " + " | ".join(cells) + " |")
     if left_out:
         lines += [
@@ -117,7 +117,43 @@ def markdown(rows: list[dict], title: str, sources: list[str], left_out: list, m
     return "\n".join(lines) + "\n"
 
 
+def _cell(m: dict, digits: int) -> str:
+    mean, std, low, high = (f"{m[k]:.{digits}f}" for k in ("mean", "std", "min", "max"))
+    return f"{mean} ± {std} [{low}, {high}]"
+
+
+def matrices(rows: list[dict], metrics: tuple[str, ...]) -> list[str]:
+    """Markdown lines: per metric, a matrix of evaders (rows) by pursuers (columns); a pairing
+    that no evaluation shares is "-"."""
+    pursuers = list(dict.fromkeys(row["pursuer"] for row in rows))
+    evaders = list(dict.fromkeys(row["evader"] for row in rows))
+    by_pair = {(row["evader"], row["pursuer"]): row for row in rows}
+    lines: list[str] = []
+    for metric in metrics:
+        label, digits = METRICS[metric]
+        lines += [
+            "",
+            f"{label[0].upper()}{label[1:]}, evaders (rows) against pursuers (columns):",
+            "",
+            "| Evader \\ Pursuer | " + " | ".join(pursuers) + " |",
+            "|---|" + "---|" * len(pursuers),
+        ]
+        for evader in evaders:
+            cells = [
+                _cell(by_pair[(evader, p)][metric], digits) if (evader, p) in by_pair else "-"
+                for p in pursuers
+            ]
+            lines.append(f"| {evader} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def main(args: Args) -> None:
+    unknown = [m for m in args.matrix if m not in METRICS]
+    if unknown:
+        raise SystemExit(
+            f"seed_spread: error: --matrix: unknown metric {unknown[0]!r}; known: "
+            + ", ".join(METRICS)
+        )
     if len(args.evaluations) < 2:
         raise SystemExit("seed_spread: error: give at least two evaluations (one per seed)")
     read = [_read(d) for d in args.evaluations]
@@ -142,7 +178,10 @@ def main(args: Args) -> None:
         )
         + "\n"
     )
-    (args.out / "seeds.md").write_text(markdown(rows, args.title, sources, left_out, read[0][0]))
+    text = markdown(rows, args.title, sources, left_out, read[0][0])
+    if args.matrix:
+        text += "\n".join(matrices(rows, args.matrix)) + "\n"
+    (args.out / "seeds.md").write_text(text)
     print(f"wrote {args.out / 'seeds.json'} and {args.out / 'seeds.md'}")
 
 

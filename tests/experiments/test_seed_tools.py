@@ -105,3 +105,19 @@ def test_curves_of_seeds_are_grouped_by_run_name_and_drawn(tmp_path):
     assert curves.seed_groups(data) == {"mix-20-5-8": ["mix-20-5-8-s0", "mix-20-5-8-s1"]}
     (path,) = curves.draw_seeds(data, tmp_path)
     assert path.name == "curves-mix-20-5-8-seeds.png" and path.stat().st_size > 10_000
+
+
+def test_seed_spread_matrix_lays_pairings_out_as_evaders_by_pursuers(tmp_path):
+    spread = _load("seed_spread")
+    extra = [("P_MEAN(20,5,8)", "E_MIX(20,5,8)"), ("P_MIX(20,5,8)", "E_scripted")]
+    runs = [_evaluation(tmp_path / f"s{i}", s, 600, extra=extra) for i, s in enumerate([0.5, 0.7])]
+    out = tmp_path / "seeds"
+    spread.main(spread.Args(evaluations=tuple(runs), out=out, matrix=("success_rate",)))
+    text = (out / "seeds.md").read_text()
+    header = "| Evader \\ Pursuer | P_MIX(20,5,8) | P_scripted | P_MEAN(20,5,8) |"
+    assert header in text
+    # E_scripted met only P_MIX: the other cells of its row are "-"
+    assert "| E_scripted | 0.600 ± 0.141 [0.500, 0.700] | - | - |" in text
+    assert text.count("| E_MIX(20,5,8) | 0.600 ± 0.141 [0.500, 0.700] |") == 1
+    with pytest.raises(SystemExit, match="--matrix: unknown metric 'wins'"):
+        spread.main(spread.Args(evaluations=tuple(runs), out=out, matrix=("wins",)))
