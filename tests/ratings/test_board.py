@@ -163,7 +163,7 @@ def test_pe_mjx_rate_runs_as_a_console_script(tmp_path):
     assert board["sources"][0]["pairings"] == 4
 
 
-@pytest.mark.parametrize("scene", ["20-5-8", "240-60-120"])
+@pytest.mark.parametrize("scene", ["20-5-8", "20-5-8-mjx", "240-60-120"])
 def test_the_committed_leaderboards_are_those_of_the_committed_results(scene):
     """docs/data/leaderboards/<scene> was written by `pe-mjx rate` from the files it names:
     rated again (point estimates do not depend on the bootstrap), every row is the same, and
@@ -177,5 +177,5 @@ def test_the_committed_leaderboards_are_those_of_the_committed_results(scene):
         assert [r["rating"] for r in board[team]] == pytest.approx([r.rating for r in rows])
     page = (LEADERBOARDS / scene / "leaderboard.md").read_text()
     table = "\n".join(line for line in page.splitlines() if line.startswith("|"))
-    assert page.startswith(f"# Leaderboard of {scene}") and table.count("\n") > 5
+    assert page.startswith(f"# Leaderboard of {board['scene']}") and table.count("\n") > 5
     assert table in (ROOT / "docs/leaderboards.md").read_text()  # the page quotes it as written
