@@ -322,13 +322,12 @@ def budget_effect() -> str:
     scripted pursuers catch of each learned evader."""
 
     def success(table: str) -> dict[tuple[str, str], float]:
-        pairings = read_json(DATA / TABLES[table][0] / "results.json")["pairings"]
-        return {
-            (p["pursuer"]["label"].split("(")[0], p["evader"]["label"].split("(")[0]): p["summary"][
-                "success_rate"
-            ]
-            for p in pairings
-        }
+        """(pursuer, evader) method labels ("P_MIX", "E_scripted") -> success rate."""
+        out = {}
+        for p in read_json(DATA / TABLES[table][0] / "results.json")["pairings"]:
+            pursuer, evader = (p[team]["label"].split("(")[0] for team in ("pursuer", "evader"))
+            out[pursuer, evader] = p["summary"]["success_rate"]
+        return out
 
     three, ten = success("III"), success("III at 10M")
     both = sorted(k for k in ten if k in three)
