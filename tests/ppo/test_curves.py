@@ -6,7 +6,7 @@ import gzip
 
 import pytest
 
-from pe_mjx.ppo.curves import CURVES_FILE, CurveLog, CurvesError, read_rows, scalars
+from pe_mjx.ppo.curves import CURVES_FILE, CurveLog, CurvesError, read_rows, scalars, write_rows
 
 
 def test_rows_round_trip_with_gaps_and_non_finite_values(tmp_path):
@@ -20,6 +20,18 @@ def test_rows_round_trip_with_gaps_and_non_finite_values(tmp_path):
     with gzip.open(tmp_path / CURVES_FILE, "rt") as f:
         header = f.readline().strip().split(",")
     assert header == ["env_steps", "wall_time", "eval/x", "loss/a"]
+
+
+def test_diagnostics_keep_4_digits_and_episode_and_eval_tags_6(tmp_path):
+    value = 0.123456789
+    tags = ["loss/p/kl", "reward/e/flee", "perf/sps", "ppo/p/lr", "episode/length", "eval/x/y"]
+    row = {"env_steps": 1, "wall_time": 0.0, **dict.fromkeys(tags, value)}
+    write_rows(tmp_path / CURVES_FILE, [row])
+    (row,) = read_rows(tmp_path / CURVES_FILE)
+    assert {t: row[t] for t in tags} == {
+        **dict.fromkeys(tags[:4], 0.1235),
+        **dict.fromkeys(tags[4:], 0.123457),
+    }
 
 
 def test_resume_drops_the_points_logged_after_the_checkpoint(tmp_path):
