@@ -13,12 +13,9 @@ OUT/recipe.json and three tables, OUT/deviations.md, OUT/hyperparameters.md and 
 which docs/results.md quotes row for row (the links of these files point from OUT; the page's,
 the same rows, from docs/).
 
-Training time: a run logs one row per iteration with the wall clock (`wall_time`, UNIX
-seconds); `pe_mjx.ppo.curves.training_time` sums the intervals between rows, a pause between
-resumed chunks (an interval over `PAUSE_S`, 10 minutes) counted as one median interval, and
-recipe.json gives per run the longest interval counted and the shortest pause. These are wall
-hours of the project's 2-core CPU, mostly shared with other jobs, so more than a run alone would
-take.
+Training time: `pe_mjx.ppo.curves.training_time` of each run's rows (recipe.json gives per run
+the longest interval counted and the shortest pause): wall hours of the project's 2-core CPU,
+mostly shared with other jobs, so more than a run alone would take.
 """
 
 from __future__ import annotations
@@ -89,11 +86,6 @@ def recipe_differences(runs: dict[str, ExperimentConfig]) -> list[str]:
     return sorted({f for c in runs.values() for f in default_config(c.preset).differences(c)})
 
 
-def training_time(run: str) -> dict:
-    """Hours of training the curves of train/runs/`run` record (the module doc gives the rule)."""
-    return curves.training_time(read_rows(RUNS / run / CURVES_FILE), PAUSE_S)
-
-
 def run_of(spec: str) -> str | None:
     """The directory under train/runs whose curves trained the policy `spec` (a run, a shipped
     name or a path), or None where no committed run logged it (train/seeds keeps policies only)."""
@@ -106,10 +98,7 @@ def run_of(spec: str) -> str | None:
     if match is None:
         return None
     run, shipped = f"{match['run']}-s0", ROOT / "assets" / "policies" / f"{match['run']}-3m"
-    if (
-        read_json(shipped / "config.json")["experiment"]
-        != read_json(RUNS / run / "config.json")["experiment"]
-    ):
+    if experiment(shipped) != experiment(RUNS / run):
         raise SystemExit(f"recipe: error: {shipped} is not the policy of train/runs/{run}")
     return run
 
@@ -141,7 +130,7 @@ def compute() -> dict:
         }
     used = sorted({r for t in tables.values() for r in t["runs"]})
     logged = sorted(path.parent.name for path in RUNS.glob(f"*/{CURVES_FILE}"))
-    runs = {run: training_time(run) for run in logged}
+    runs = {r: curves.training_time(read_rows(RUNS / r / CURVES_FILE), PAUSE_S) for r in logged}
     page = {"runs": used, "evaluation_h": sum(t["evaluation_h"] for t in tables.values())}
     other = {"runs": sorted(set(runs) - set(used)), "evaluation_h": 0.0}
     for t in (*tables.values(), page, other):

@@ -9,15 +9,11 @@ This module writes all three and reads the train state back; everything that rea
 the store. Orbax writes each step into a temporary directory and renames it when complete, so a
 kill during a save leaves the previous step loadable; the manager keeps the last `MAX_TO_KEEP`.
 
-A latest checkpoint damaged after the fact (a truncated or altered file) is one
-`DamagedCheckpointError` naming the latest intact earlier checkpoint; `fallback=True`
-(`pe-mjx train --resume RUN --resume-intact`) resumes from that one and moves the damaged later
-ones to `RUN/damaged-checkpoints/<step>` (kept, not deleted: the run's next saves reuse their
-step numbers).
-
-A *resumable copy* (`pe_mjx.ppo.resumable` writes it) holds the learners of one checkpoint
-without the arenas in flight; `--resume` on it restores the learners exactly and draws the arenas
-afresh, with a warning line.
+A latest checkpoint damaged after the fact (truncated or altered) is one `DamagedCheckpointError`
+naming the latest intact earlier one; `fallback=True` (`pe-mjx train --resume RUN
+--resume-intact`) resumes from that one and moves the damaged later ones to
+`RUN/damaged-checkpoints/<step>` (kept: the run's next saves reuse their step numbers). A
+resumable copy (`pe_mjx.ppo.resumable`) restores its learners exactly, its arenas afresh.
 """
 
 from __future__ import annotations

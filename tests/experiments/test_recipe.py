@@ -3,7 +3,6 @@ names ours and the paper's value, and the training-time rule on small made-up cu
 
 from __future__ import annotations
 
-import gzip
 import json
 import subprocess
 import sys
@@ -58,28 +57,6 @@ def test_the_tables_follow_the_config():
     assert rows["Discount γ / GAE λ"]["pursuers"] == "0.9 / 0.95"
     assert "r_s 70" in rows["Rewards"]["pursuers"]
     assert rows["Budget"]["pursuers"] == "4,096 env steps"
-
-
-def _curves(run, wall_times):
-    run.mkdir(parents=True)
-    lines = ["env_steps,wall_time,episode/length"]
-    lines += [f"{2048 * (i + 1)},{t},1" for i, t in enumerate(wall_times)]
-    with gzip.open(run / "curves.csv.gz", "wt") as f:
-        f.write("\n".join(lines) + "\n")
-
-
-def test_a_pause_between_resumed_chunks_counts_as_one_median_interval(tmp_path, monkeypatch):
-    module = _load()
-    monkeypatch.setattr(module, "RUNS", tmp_path)
-    # two chunks of 6-minute iterations, one with a 9-minute evaluation, 5 hours apart
-    first = [0.0, 360.0, 720.0, 1260.0, 1620.0]
-    _curves(tmp_path / "r", first + [1620.0 + 5 * 3600 + 360.0 * i for i in range(3)])
-    time = module.training_time("r")
-    assert (time["pauses"], time["median_interval_s"], time["longest_counted_s"]) == (1, 360, 540)
-    # six intervals counted (2,340 s) and the pause as one median interval
-    assert time["hours"] == 0.75
-    assert time["paused_h"] == 5.0
-    assert time["env_steps"] == 8 * 2048
 
 
 def test_provenance_counts_each_reports_code_version():

@@ -6,7 +6,15 @@ import gzip
 
 import pytest
 
-from pe_mjx.ppo.curves import CURVES_FILE, CurveLog, CurvesError, read_rows, scalars, write_rows
+from pe_mjx.ppo.curves import (
+    CURVES_FILE,
+    CurveLog,
+    CurvesError,
+    read_rows,
+    scalars,
+    training_time,
+    write_rows,
+)
 
 
 def test_rows_round_trip_with_gaps_and_non_finite_values(tmp_path):
@@ -99,3 +107,16 @@ def test_a_decompression_bomb_is_refused_before_it_is_read_whole(tmp_path, monke
     assert path.stat().st_size < 1000
     with pytest.raises(CurvesError, match="larger than"):
         read_rows(path)
+
+
+def test_a_pause_between_resumed_chunks_counts_as_one_median_interval():
+    # two chunks of 6-minute iterations, one with a 9-minute evaluation, 5 hours apart
+    first = [0.0, 360.0, 720.0, 1260.0, 1620.0]
+    times = first + [1620.0 + 5 * 3600 + 360.0 * i for i in range(3)]
+    rows = [{"env_steps": 2048 * (i + 1), "wall_time": t} for i, t in enumerate(times)]
+    time = training_time(rows)
+    assert (time["pauses"], time["median_interval_s"], time["longest_counted_s"]) == (1, 360, 540)
+    # six intervals counted (2,340 s) and the pause as one median interval
+    assert time["hours"] == 0.75
+    assert time["paused_h"] == 5.0
+    assert time["env_steps"] == 8 * 2048
