@@ -54,6 +54,7 @@ TABLES = {
 SHIPPED = re.compile(r"(?P<run>[a-z]+-\d+-\d+-\d+)-3m(-k\d+)?(-5m)?")
 DIAGNOSIS = {"flee": "d7-flee10", "flee_and_step": "d9-at-300k"}
 LENGTH = "eval/evader_vs_scripted/length"
+METHODS = ("mix", "mean", "birnn", "mlp")
 NOTES = "../../experiments"  # docs/experiments, from docs/data/recipe
 DOCS = "../.."  # docs, from docs/data/recipe
 
@@ -62,6 +63,10 @@ DOCS = "../.."  # docs, from docs/data/recipe
 class Args:
     out: Path = DATA / "recipe"
     """Where recipe.json, deviations.md, hyperparameters.md and compute.md go."""
+
+
+def and_list(words: list[str]) -> str:
+    return " and ".join([", ".join(words[:-1]), words[-1]] if len(words) > 1 else words)
 
 
 def num(x: float) -> str:
@@ -153,8 +158,8 @@ def measurements() -> dict:
     diagnosis = {r["run"]: r for r in read_json(DATA / "evader_diagnosis.json")}
     reference = read_json(DATA / "evader_diagnosis_reference.json")["experiment"]
     backend = read_json(DATA / "backend_training.json")
-    spread = {}
-    for method in ("mix", "mean"):
+    spread = {}  # the methods with three seeds at 20-5-8, in the page's order
+    for method in [m for m in METHODS if (DATA / "coev-seeds-3m" / m / "seeds.json").is_file()]:
         label = f"{method.upper()}(20,5,8)"
         rows = read_json(DATA / "coev-seeds-3m" / method / "seeds.json")["pairings"]
         row = next(r for r in rows if (r["pursuer"], r["evader"]) == (f"P_{label}", f"E_{label}"))
@@ -177,7 +182,7 @@ def measurements() -> dict:
             **{r["backend"]: r["success_rate"] for r in backend["results"]},
         },
         "seeds": {
-            "source": "docs/data/coev-seeds-3m/{mix,mean}/seeds.json",
+            "source": f"docs/data/coev-seeds-3m/{{{','.join(spread)}}}/seeds.json",
             "self_match_success_std": spread,
         },
     }
@@ -297,11 +302,11 @@ def training_rows(
         (
             "Seeds",
             f"seed {', '.join(sorted({str(c.seed) for c in runs.values()}))} for every method "
-            "and scale; MIX and MEAN also 1 and 2 at 20-5-8",
+            f"and scale; {and_list([m.upper() for m in spread])} also 1 and 2 at 20-5-8",
             says("seeds"),
             f"CPU time ([notes of 2026-12-03]({NOTES}/2026-12-03-seeds.md))",
-            f"std over 3 seeds of a self-match's success at 20-5-8: {spread['mix']:.3f} (MIX), "
-            f"{spread['mean']:.3f} (MEAN)",
+            "std over 3 seeds of a self-match's success at 20-5-8: "
+            + ", ".join(f"{std:.3f} ({m.upper()})" for m, std in spread.items()),
         ),
     ]
 
@@ -417,15 +422,8 @@ def compute_markdown(data: dict) -> str:
         "pairing a report kept from an earlier one. Evaluated from: the code version each "
         "report recorded (`meta.code_version`; reports older than that field: not recorded)."
     )
-    header = (
-        "Table",
-        "Trained by (`train/runs/`)",
-        "Training h",
-        "Evaluation h",
-        "Total h",
-        "Evaluated from",
-    )
-    return markdown("Compute per table", text, header, rows)
+    header = "Table|Trained by (`train/runs/`)|Training h|Evaluation h|Total h|Evaluated from"
+    return markdown("Compute per table", text, tuple(header.split("|")), rows)
 
 
 def build() -> dict:
