@@ -133,6 +133,16 @@ def code_provenance(metas: list[dict[str, Any]]) -> dict[str, int]:
     return counts
 
 
+def provenance_text(counts: dict[str, int]) -> str:
+    """`code_provenance`'s counts in words: "clean commit", or "1 of 4 clean commit, 3 of 4
+    dirty tree"."""
+    total = sum(counts.values())
+    if counts["clean"] == total:
+        return "clean commit"
+    words = {"clean": "clean commit", "dirty": "dirty tree", "not_recorded": "not recorded"}
+    return ", ".join(f"{n} of {total} {words[k]}" for k, n in counts.items() if n)
+
+
 _NUMBERS = re.compile(r"\[\s*([-+0-9.eE,\s]|NaN|Infinity)*\s*\]")
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from pe_mjx.eval_reports import dumps
+from pe_mjx.eval_reports import code_provenance, dumps, provenance_text
 
 
 def test_results_json_writes_per_trial_lists_on_one_line_and_whole_numbers_bare():
@@ -23,3 +23,12 @@ def test_results_json_writes_per_trial_lists_on_one_line_and_whole_numbers_bare(
     assert '"captures": [3, 0]' in text
     assert '"radius": 5.0' in text  # a scalar keeps its type; only the lists are compacted
     assert json.loads(text) == payload  # the same numbers (JSON's 1 == 1.0)
+
+
+def test_provenance_counts_each_reports_code_version():
+    clean = {"code_version": {"git_commit": "a" * 40, "git_dirty": False}}
+    dirty = {"code_version": {"git_commit": "b" * 40, "git_dirty": True}}
+    counts = code_provenance([clean, dirty, dirty, {}])
+    assert counts == {"clean": 1, "dirty": 2, "not_recorded": 1}
+    assert provenance_text(counts) == "1 of 4 clean commit, 2 of 4 dirty tree, 1 of 4 not recorded"
+    assert provenance_text(code_provenance([clean, clean])) == "clean commit"

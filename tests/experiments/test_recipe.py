@@ -7,17 +7,12 @@ import json
 import subprocess
 import sys
 
-from pe_mjx.eval_reports import code_provenance
 from pe_mjx.experiment import default_config
 from pe_mjx.paper import SETTINGS, hyperparameters
-from tests.tool_modules import ROOT, load_experiment
+from tests.tool_modules import ROOT
 
 RECIPE = ROOT / "docs" / "data" / "recipe"
 FILES = ("recipe.json", "deviations.md", "hyperparameters.md", "compute.md")
-
-
-def _load():
-    return load_experiment("results", "recipe")
 
 
 def test_the_committed_files_are_what_the_script_writes(tmp_path):
@@ -57,16 +52,3 @@ def test_the_tables_follow_the_config():
     assert rows["Discount γ / GAE λ"]["pursuers"] == "0.9 / 0.95"
     assert "r_s 70" in rows["Rewards"]["pursuers"]
     assert rows["Budget"]["pursuers"] == "4,096 env steps"
-
-
-def test_provenance_counts_each_reports_code_version():
-    recipe = _load()
-    clean = {"code_version": {"git_commit": "a" * 40, "git_dirty": False}}
-    dirty = {"code_version": {"git_commit": "b" * 40, "git_dirty": True}}
-    counts = code_provenance([clean, dirty, dirty, {}])
-    assert counts == {"clean": 1, "dirty": 2, "not_recorded": 1}
-    assert (
-        recipe.provenance_cell(counts)
-        == "1 of 4 clean commit, 2 of 4 dirty tree, 1 of 4 not recorded"
-    )
-    assert recipe.provenance_cell(code_provenance([clean, clean])) == "clean commit"
