@@ -27,7 +27,7 @@ from pathlib import Path
 
 import tyro
 
-from pe_mjx.eval_reports import code_provenance, evaluation_seconds
+from pe_mjx.eval_reports import code_provenance, evaluation_seconds, provenance_text
 from pe_mjx.experiment import ExperimentConfig, default_config
 from pe_mjx.paper import PAPER as PAPER_TABLES
 from pe_mjx.paper import SETTINGS, hyperparameters, learning_rate, says, step_size
@@ -106,14 +106,6 @@ def run_of(spec: str) -> str | None:
     if experiment(shipped) != experiment(RUNS / run):
         raise SystemExit(f"recipe: error: {shipped} is not the policy of train/runs/{run}")
     return run
-
-
-def provenance_cell(counts: dict[str, int]) -> str:
-    total = sum(counts.values())
-    if counts["clean"] == total:
-        return "clean commit"
-    parts = {"clean": "clean commit", "dirty": "dirty tree", "not_recorded": "not recorded"}
-    return ", ".join(f"{n} of {total} {parts[k]}" for k, n in counts.items() if n)
 
 
 def compute() -> dict:
@@ -410,7 +402,7 @@ def compute_markdown(data: dict) -> str:
         if t.get("not_logged"):
             trained += f"; not logged: {', '.join(f'`{n}`' for n in t['not_logged'])}"
         hours = (f"{t[key]:.2f}" for key in ("training_h", "evaluation_h", "total_h"))
-        evaluated = provenance_cell(t["provenance"]) if "provenance" in t else ""
+        evaluated = provenance_text(t["provenance"]) if "provenance" in t else ""
         rows.append((label, trained, *hours, evaluated))
     text = (
         f"Wall hours on a {data['machine']['cpu_cores']}-core CPU, no GPU, mostly shared with "
