@@ -150,6 +150,7 @@ def measurements() -> dict:
     diagnosis = {r["run"]: r for r in read_json(DATA / "evader_diagnosis.json")}
     reference = read_json(DATA / "evader_diagnosis_reference.json")["experiment"]
     backend = read_json(DATA / "backend_training.json")
+    ablations = DATA / "ablations" / "effects.json"  # experiments/results/ablations.py
     spread = {}  # the methods with three seeds at 20-5-8, in the page's order
     for method in [m for m in METHODS if (DATA / "coev-seeds-3m" / m / "seeds.json").is_file()]:
         label = f"{method.upper()}(20,5,8)"
@@ -173,6 +174,7 @@ def measurements() -> dict:
             "preset": backend["args"]["preset"],
             **{r["backend"]: r["success_rate"] for r in backend["results"]},
         },
+        "ablations": read_json(ablations) if ablations.is_file() else {},
         "seeds": {
             "source": f"docs/data/coev-seeds-3m/{{{','.join(spread)}}}/seeds.json",
             "self_match_success_std": spread,
@@ -190,7 +192,7 @@ def deviations(
     """Rows (what, ours, paper, why, measured): every place the recipe departs from the paper
     or fills what it leaves open."""
     rows = [
-        *evader_rows(config, measured["evader_diagnosis"]),
+        *evader_rows(config, measured["evader_diagnosis"], measured["ablations"]),
         *training_rows(config, runs, measured, env_steps),
         *evaluation_rows(),
     ]
@@ -198,14 +200,19 @@ def deviations(
     return [dict(zip(keys, row, strict=True)) for row in rows]
 
 
-def evader_rows(config: ExperimentConfig, diagnosis: dict) -> list[tuple[str, ...]]:
+def evader_rows(
+    config: ExperimentConfig, diagnosis: dict, ablations: dict
+) -> list[tuple[str, ...]]:
     """The step size and the flee shaping that made the evaders learn, and the rewards."""
     reward = config.env.reward
+    paper = ablations.get("paper_recipe", {}).get("text")
+    no_data = "the step size without the shaping: not yet ablated"
     fast = diagnosis["flee_and_step"]["changed"]
     fast_rate, fast_schedule = step_size(fast["ppo.learning_rate"]), fast["ppo.lr_schedule"]
     slow = step_size(diagnosis["reference_learning_rate"])
     note = f"[evader diagnosis]({NOTES}/2026-12-01-evader-diagnosis.md)"
     flee = episode_length(diagnosis["flee"]["length"])
+    no_shaping = f"at {fast_rate} without it: not yet ablated"
     return [
         (
             "Adam step size",
@@ -216,8 +223,8 @@ def evader_rows(config: ExperimentConfig, diagnosis: dict) -> list[tuple[str, ..
             f"at {slow} the evaders' PPO updates barely moved their policy ({note})",
             "with the flee shaping, the eval episode length against the scripted pursuers: "
             f"{episode_length(diagnosis['flee_and_step']['length'])} at {fast_rate} "
-            f"({fast_schedule}), {flee} at {slow} (`evader_diagnosis.json`); the step size "
-            "without the shaping: not yet ablated",
+            f"({fast_schedule}), {flee} at {slow} (`evader_diagnosis.json`); "
+            + (f"undone with the shaping, {paper}" if paper else no_data),
         ),
         (
             "Evaders' flee shaping (`env.reward.evader_flee`)",
@@ -225,7 +232,8 @@ def evader_rows(config: ExperimentConfig, diagnosis: dict) -> list[tuple[str, ..
             f"{num(reward.flee_range)} m; in training only",
             says("evader_reward"),
             f"a dense signal to run, with the larger step size ({note})",
-            f"alone, at {slow}: {flee}, no gain; at {fast_rate} without it: not yet ablated",
+            f"alone, at {slow}: {flee}, no gain; "
+            + ("undone with the step size: the row above" if paper else no_shaping),
         ),
         (
             "Capture reward r_s",
@@ -259,7 +267,7 @@ def training_rows(
             f"`{config.pursuer.network.mix_queries}`: the agent's own token queries every token",
             says("mix_queries"),
             f"about 6x cheaper on this CPU, the same parameters ([design]({DOCS}/design.md))",
-            "not yet ablated",
+            measured["ablations"].get("queries_all", {}).get("text", "not yet ablated"),
         ),
         (
             "PPO settings, reward scales",
