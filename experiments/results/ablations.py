@@ -31,13 +31,13 @@ ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "docs" / "data"
 ABLATIONS = {
     "paper_recipe": {
-        "what": "the paper's step size (3e-4 for both teams) and no flee shaping, 3M",
+        "what": "undone with the flee shaping, the paper's step size (3e-4, both teams) at 3M",
         "evaluation": "ablations/paper-recipe-3m",
         "ablated": "mix-20-5-8-paper-recipe-3m",
         "ours": "mix-20-5-8-3m",
     },
     "queries_all": {
-        "what": "full self-attention (every entity queries), 1M",
+        "what": "every entity's token queries (full self-attention) at 1M",
         "evaluation": "ablations/queries-all-1m",
         "ablated": "mix-20-5-8-queries-all-1m",
         "ours": "mix-20-5-8",

@@ -48,6 +48,7 @@ TABLES = {
     "VI": ("paper-3m-scales/table-VI",),
     "Three seeds at 20-5-8": ("coev-seeds-3m/*-s[0-9]",),
     "240-60-120": ("large-scale/*/*",),
+    "Ablations": ("ablations/*",),
 }
 # A policy shipped from a seed-0 co-evolution (`mix-20-5-8-3m`), or the same parameters read
 # through k nearest entities or a 5 m length unit (`mix-20-5-8-3m-k4-5m`).
@@ -223,8 +224,7 @@ def evader_rows(
             f"at {slow} the evaders' PPO updates barely moved their policy ({note})",
             "with the flee shaping, the eval episode length against the scripted pursuers: "
             f"{episode_length(diagnosis['flee_and_step']['length'])} at {fast_rate} "
-            f"({fast_schedule}), {flee} at {slow} (`evader_diagnosis.json`); "
-            + (f"undone with the shaping, {paper}" if paper else no_data),
+            f"({fast_schedule}), {flee} at {slow} (`evader_diagnosis.json`); " + (paper or no_data),
         ),
         (
             "Evaders' flee shaping (`env.reward.evader_flee`)",
