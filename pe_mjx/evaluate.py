@@ -156,8 +156,8 @@ def cross_confrontation(
     played (see `Earlier`).
     """
     env = PursuitEvasionEnv(config.env, backend=config.backend)
-    p_specs = [resolve_policy(s, "pursuer", config.env) for s in config.pursuers]
-    e_specs = [resolve_policy(s, "evader", config.env) for s in config.evaders]
+    p_specs = distinct_labels([resolve_policy(s, "pursuer", config.env) for s in config.pursuers])
+    e_specs = distinct_labels([resolve_policy(s, "evader", config.env) for s in config.evaders])
     keys = jax.random.split(jax.random.key(config.seed), config.trials)
     pairs = [
         (p, e)
@@ -171,6 +171,20 @@ def cross_confrontation(
             interrupts.check()  # a safe point between pairings (Ctrl-C)
             matrix.pairing(index, p_spec, e_spec, f"[{index + 1}/{len(pairs)}]", bar)
     return matrix.results
+
+
+def distinct_labels(policies: list[Policy]) -> list[Policy]:
+    """One side's policies with the labels that two or more of them share (two MIX runs trained
+    at the same counts are both "P_MIX(20,5,8)") followed by their source's name,
+    "P_MIX(20,5,8) [mix-20-5-8-3m]", so that the reports and heatmaps keep them apart; a label
+    that one policy holds stays the paper's."""
+    labels = [p.label for p in policies]
+    return [
+        dataclasses.replace(p, label=f"{p.label} [{Path(p.source).name}]")
+        if labels.count(p.label) > 1
+        else p
+        for p in policies
+    ]
 
 
 class _Matrix:
@@ -381,6 +395,7 @@ __all__ = [
     "Policy",
     "check_policy_specs",
     "cross_confrontation",
+    "distinct_labels",
     "evaluate",
     "markdown_table",
     "mean_ci",

@@ -259,3 +259,16 @@ def test_the_api_and_the_cli_evaluate_a_shipped_policy_bit_for_bit(tmp_path, cap
     assert results("api") == results("cli")
     for name in ("trials.csv", "results.csv", "results.md", "trajectories/pairing-0.npz"):
         assert (tmp_path / "api" / name).read_bytes() == (tmp_path / "cli" / name).read_bytes()
+
+
+def test_two_runs_of_one_method_get_labels_that_tell_them_apart():
+    env = pe_mjx.get_preset("20-5-8")
+    specs = ("mix-20-5-8", "mix-20-5-8-3m", "mean-20-5-8-3m", "scripted")
+    policies = ev.distinct_labels([ev.resolve_policy(s, "pursuer", env) for s in specs])
+    assert [p.label for p in policies] == [
+        "P_MIX(20,5,8) [mix-20-5-8]",
+        "P_MIX(20,5,8) [mix-20-5-8-3m]",
+        "P_MEAN(20,5,8)",  # a label only one policy holds stays the paper's
+        "P_scripted",
+    ]
+    assert [p.source for p in policies] == list(specs)
