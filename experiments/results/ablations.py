@@ -80,17 +80,16 @@ def effect(spec: dict) -> dict | None:
             "ablated": {k: a[k] for k in ("success_rate", "per_evader_cost")},
             "ours": {k: o[k] for k in ("success_rate", "per_evader_cost")},
         }
-    rate = {k: f"{v['ablated']['success_rate']:.3f}" for k, v in table.items()}
-    ours_rate = {k: f"{v['ours']['success_rate']:.3f}" for k, v in table.items()}
+    rate = {k: {side: f"{v[side]['success_rate']:.3f}" for side in v} for k, v in table.items()}
     cost = {k: f"{v['per_evader_cost']:.3f}" for k, v in table["scripted_evader"].items()}
     text = (
         f"{spec['what']} (`{ablated}` against `{ours}`, `docs/data/{spec['evaluation']}`, "
         f"{results['meta']['trials']} trials): the scripted pursuers catch "
-        f"{rate['scripted_pursuers']} of its evaders (ours {ours_rate['scripted_pursuers']}); "
-        f"its pursuers catch {rate['scripted_evader']} of the scripted evader at "
-        f"{cost['ablated']} per evader (ours {ours_rate['scripted_evader']} at {cost['ours']}); "
-        f"across, its pursuers catch {rate['cross']} of our evaders and ours "
-        f"{ours_rate['cross']} of its"
+        f"{rate['scripted_pursuers']['ablated']} of its evaders (ours "
+        f"{rate['scripted_pursuers']['ours']}); its pursuers catch "
+        f"{rate['scripted_evader']['ablated']} of the scripted evader at {cost['ablated']} per "
+        f"evader (ours {rate['scripted_evader']['ours']} at {cost['ours']}); across, its pursuers "
+        f"catch {rate['cross']['ablated']} of our evaders and ours {rate['cross']['ours']} of its"
     )
     return {**spec, "trials": results["meta"]["trials"], "pairings": table, "text": text}
 

@@ -29,6 +29,7 @@ import tyro
 
 from pe_mjx.eval_reports import code_provenance, evaluation_seconds, provenance_text
 from pe_mjx.experiment import ExperimentConfig, default_config
+from pe_mjx.names import ENCODERS
 from pe_mjx.paper import PAPER as PAPER_TABLES
 from pe_mjx.paper import SETTINGS, hyperparameters, learning_rate, says, step_size
 from pe_mjx.ppo import curves
@@ -55,7 +56,6 @@ TABLES = {
 SHIPPED = re.compile(r"(?P<run>[a-z]+-\d+-\d+-\d+)-3m(-k\d+)?(-5m)?")
 DIAGNOSIS = {"flee": "d7-flee10", "flee_and_step": "d9-at-300k"}
 LENGTH = "eval/evader_vs_scripted/length"
-METHODS = ("mix", "mean", "birnn", "mlp")
 NOTES = "../../experiments"  # docs/experiments, from docs/data/recipe
 DOCS = "../.."  # docs, from docs/data/recipe
 
@@ -153,7 +153,7 @@ def measurements() -> dict:
     backend = read_json(DATA / "backend_training.json")
     ablations = DATA / "ablations" / "effects.json"  # experiments/results/ablations.py
     spread = {}  # the methods with three seeds at 20-5-8, in the page's order
-    for method in [m for m in METHODS if (DATA / "coev-seeds-3m" / m / "seeds.json").is_file()]:
+    for method in [m for m in ENCODERS if (DATA / "coev-seeds-3m" / m / "seeds.json").is_file()]:
         label = f"{method.upper()}(20,5,8)"
         rows = read_json(DATA / "coev-seeds-3m" / method / "seeds.json")["pairings"]
         row = next(r for r in rows if (r["pursuer"], r["evader"]) == (f"P_{label}", f"E_{label}"))
