@@ -47,14 +47,16 @@ _READS_FAILED = False  # whether a checkpoint read in this process failed (`quie
 
 
 def _late_post_to_closed_loop(unraisable: Any) -> bool:
-    """A native callback (no Python caller) posting to an asyncio loop that was closed."""
+    """A native callback (no Python caller) posting to an asyncio loop that was closed: orbax's
+    loop is uvloop's where installed (its frame is `uvloop.loop.Loop.call_soon_threadsafe`),
+    asyncio's otherwise (`call_soon_threadsafe`)."""
     exc, tb = unraisable.exc_value, unraisable.exc_traceback
     return (
         unraisable.object is None
         and isinstance(exc, RuntimeError)
         and str(exc) == "Event loop is closed"
         and tb is not None
-        and tb.tb_frame.f_code.co_name == "call_soon_threadsafe"
+        and tb.tb_frame.f_code.co_name.rsplit(".", 1)[-1] == "call_soon_threadsafe"
     )
 
 

@@ -81,8 +81,18 @@ def warn_fallback(err: Exception, step: int, doing: str) -> None:
     print(f"pe-mjx: warning: {err}; {doing} checkpoint {step} instead", file=sys.stderr)
 
 
+_ARRAY_READ_FAILED = "Encountered error while reading array"
+"""How orbax words a failed array read: its message goes on to print the whole TensorStore spec,
+while the exception it chains to names the array and what is wrong with its bytes."""
+
+
 def short_error(err: Exception, limit: int = 300) -> str:
-    """`err` in one line: its type and message, whitespace collapsed, cut at `limit`."""
+    """`err` in one line: its type and message, whitespace collapsed, cut at `limit`. A failed
+    array read is told by its cause (e.g. `OUT_OF_RANGE: Error reading "params...kernel/0.0"
+    ...: Requested byte range ... is not valid`), not by orbax's echo of the store's spec."""
+    cause = err.__cause__ or err.__context__
+    if str(err).startswith(_ARRAY_READ_FAILED) and cause is not None:
+        err = cause
     return one_line(f"{type(err).__name__}: {err}", limit)
 
 

@@ -8,6 +8,7 @@ import sys
 from types import SimpleNamespace
 
 import pytest
+import uvloop
 
 from pe_mjx.policy import quiet
 
@@ -28,20 +29,24 @@ def test_late_echoes_of_a_failed_array_read_are_dropped_and_nothing_else(monkeyp
     assert seen == [other]
 
     # A read still in flight posts to orbax's closed loop from native code: dropped only once a
-    # checkpoint read of this process has failed.
-    loop = asyncio.new_event_loop()
-    loop.close()
-    try:
-        loop.call_soon_threadsafe(print)
-    except RuntimeError as err:
-        late = SimpleNamespace(exc_value=err, exc_traceback=err.__traceback__.tb_next, object=None)
-    monkeypatch.setattr(quiet, "_READS_FAILED", False)
-    sys.unraisablehook(late)
-    assert seen[-1] is late.exc_value
-    with pytest.raises(ValueError), quiet.quiet_logs():
-        raise ValueError("a damaged array")
-    sys.unraisablehook(late)
-    assert len(seen) == 2
+    # checkpoint read of this process has failed. Orbax's loop is uvloop's (one of its
+    # requirements on Linux), asyncio's where uvloop is missing.
+    for new_loop in (uvloop.new_event_loop, asyncio.new_event_loop):
+        loop = new_loop()
+        loop.close()
+        try:
+            loop.call_soon_threadsafe(print)
+        except RuntimeError as err:
+            tb = err.__traceback__.tb_next  # from the loop's frame on, as from native code
+            late = SimpleNamespace(exc_value=err, exc_traceback=tb, object=None)
+        monkeypatch.setattr(quiet, "_READS_FAILED", False)
+        sys.unraisablehook(late)
+        assert seen[-1] is late.exc_value
+        with pytest.raises(ValueError), quiet.quiet_logs():
+            raise ValueError("a damaged array")
+        sys.unraisablehook(late)
+        assert seen[-1] is late.exc_value and len(seen) == 2
+        seen.pop()
 
     log = logging.getLogger("asyncio")
     records = [

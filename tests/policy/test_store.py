@@ -4,12 +4,15 @@ trainer's own checkpoints, a truncated one among them)."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 import pe_mjx
 from pe_mjx.policy.resolve import load_policy
 from pe_mjx.policy.shipped import resolve_run
 from pe_mjx.policy.store import CheckpointError
+from tests.policy_copies import orbax_copy
 
 SHIPPED = resolve_run("mix-20-5-8")
 
@@ -28,3 +31,19 @@ def test_missing_and_mismatched_checkpoints_give_clear_errors(tmp_path):
     )
     with pytest.raises(CheckpointError, match="actions"):
         load_policy(SHIPPED, team="pursuer", env_config=other)
+
+
+def test_a_truncated_array_is_named_in_one_line(tmp_path):
+    """Orbax words a failed array read as the store's whole TensorStore spec; the error line
+    names the array and what is wrong with its bytes instead."""
+    run = orbax_copy("mix-20-5-8", tmp_path / "run")
+    step = next(p for p in (run / "checkpoints").iterdir() if p.name.isdigit())
+    data = [p for p in (step / "policy_evader").rglob("d/*") if p.is_file()]
+    assert data
+    for path in data:
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 3])
+    with pytest.raises(CheckpointError) as raised:
+        load_policy(run, team="evader")
+    message = str(raised.value)
+    assert "\n" not in message and "TensorStore(" not in message
+    assert re.search(r'Error reading "\w[\w.]*/[\w.]+"', message), message  # an array's chunk
