@@ -65,7 +65,7 @@ Log = Callable[[str], Any]
 def check_policy_specs(config: EvalConfig) -> None:
     """Each policy spec is built in or a readable run that learned its team, checked before any
     compile: `ValueError` naming the flag (--pursuers or --evaders) and the spec."""
-    from pe_mjx.policy.shipped import resolve_run
+    from pe_mjx.policy.shipped import resolve_run, retired_note
     from pe_mjx.policy.store import CheckpointError, read_meta
 
     for flag, specs, team in (
@@ -77,7 +77,7 @@ def check_policy_specs(config: EvalConfig) -> None:
                 continue
             if not spec or not resolve_run(spec).is_dir():
                 kinds = POLICY_KINDS.replace("a run", "a run directory")
-                raise ValueError(f"{flag}: {spec!r} is not {kinds}")
+                raise ValueError(f"{flag}: {retired_note(spec) or f'{spec!r} is not {kinds}'}")
             try:
                 meta = read_meta(spec)
             except CheckpointError as err:

@@ -549,3 +549,15 @@ def test_a_name_that_stdout_cannot_encode_is_written_and_printed_escaped(tmp_pat
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith(b"wrote arena-\\udcff.xml")
     assert [p.name for p in tmp_path.iterdir()] == [name]
+
+
+@pytest.mark.parametrize("command", ["evaluate", "view"])
+def test_a_retired_policy_name_says_what_to_play_instead(command, tmp_path, capsys, monkeypatch):
+    """mean-20-5-8 shipped until 2026-12-06: asking for it names its successors."""
+    monkeypatch.chdir(tmp_path)
+    argv = [command, "--preset", "2-1-1", "--backend", "kinematic", "--pursuers", "mean-20-5-8"]
+    code, out, err, raised = _run(argv, capsys)
+    assert (code, raised, out) == (2, "", "")
+    assert len(err.splitlines()) == 1 and err.startswith("pe-mjx: error: --pursuers: ")
+    assert "mean-20-5-8 no longer ships" in err and "play mean-20-5-8-3m or" in err
+    assert list(tmp_path.iterdir()) == []

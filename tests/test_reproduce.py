@@ -100,7 +100,7 @@ def test_suffix_picks_the_runs_with_it_and_names_them_in_the_report(tmp_path):
 
     policies = ROOT / "pe_mjx" / "assets" / "policies"
     shutil.copytree(policies / "mix-20-5-8", tmp_path / "mix-20-5-8-3m")
-    shutil.copytree(policies / "mean-20-5-8", tmp_path / "mean-20-5-8")
+    shutil.copytree(policies / "mean-20-5-8-3m", tmp_path / "mean-20-5-8")
     args = ReproduceArgs(runs=tmp_path, encoders=("mix", "mean"), suffix="-3m")
     assert found_runs(args, "20-5-8") == [str(tmp_path / "mix-20-5-8-3m")]
     plain = dataclasses.replace(args, suffix="")
@@ -126,8 +126,8 @@ def test_a_kept_table_names_the_runs_it_does_not_play(tmp_path, capsys):
     from pe_mjx.reproduce import ReproduceArgs, _evaluate
 
     policies = ROOT / "pe_mjx" / "assets" / "policies"
-    for name in ("mix-20-5-8", "mean-20-5-8"):
-        shutil.copytree(policies / name, tmp_path / "runs" / name)
+    for name, shipped in (("mix-20-5-8", "mix-20-5-8"), ("mean-20-5-8", "mean-20-5-8-3m")):
+        shutil.copytree(policies / shipped, tmp_path / "runs" / name)
     mix = str(tmp_path / "runs" / "mix-20-5-8")
     table = tmp_path / "out" / "table-III"
     table.mkdir(parents=True)
@@ -159,8 +159,8 @@ def test_extend_plays_a_kept_table_again_keeping_what_it_can(tmp_path, monkeypat
     from pe_mjx.reproduce import ReproduceArgs, _evaluate
 
     policies = ROOT / "pe_mjx" / "assets" / "policies"
-    for name in ("mix-20-5-8", "mean-20-5-8"):
-        shutil.copytree(policies / name, tmp_path / "runs" / name)
+    for name, shipped in (("mix-20-5-8", "mix-20-5-8"), ("mean-20-5-8", "mean-20-5-8-3m")):
+        shutil.copytree(policies / shipped, tmp_path / "runs" / name)
     mix, mean = (str(tmp_path / "runs" / n) for n in ("mix-20-5-8", "mean-20-5-8"))
     table = tmp_path / "out" / "table-III"
     table.mkdir(parents=True)

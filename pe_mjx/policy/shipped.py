@@ -34,6 +34,31 @@ def shipped_names() -> tuple[str, ...]:
     )
 
 
+RETIRED = {
+    "mlp-20-5-8": ("mlp-20-5-8-s0", 510),
+    "mean-20-5-8": ("mean-20-5-8-s0", 510),
+    "birnn-20-5-8": ("birnn-20-5-8-s0", 170),
+}
+"""Policies that shipped once and were removed on 2026-12-06 (the 1M snapshots of Table III's
+MLP, MEAN and BIRNN co-evolutions, superseded by their `-3m` and `-10m` successors; see
+assets/policies/README.md): name -> (the run under train/runs whose config made it, the
+iteration it was taken at)."""
+
+
+def retired_note(spec: str | Path) -> str | None:
+    """For the name of a retired policy (`RETIRED`), one sentence on what to play instead and
+    how to train it again; None for anything else."""
+    name = str(spec)
+    if name not in RETIRED:
+        return None
+    run, iteration = RETIRED[name]
+    return (
+        f"{name} no longer ships (retired on 2026-12-06): play {name}-3m or {name}-10m, or "
+        f"train it again from a checkout with `pe-mjx train --config "
+        f"train/runs/{run}/config.json --stop-after {iteration} --out runs/{name}`"
+    )
+
+
 def resolve_run(spec: str | Path) -> Path:
     """A run directory from a path or a shipped policy's name.
 
@@ -50,4 +75,4 @@ def resolve_run(spec: str | Path) -> Path:
     return path
 
 
-__all__ = ["policies_dir", "resolve_run", "shipped_names"]
+__all__ = ["RETIRED", "policies_dir", "resolve_run", "retired_note", "shipped_names"]

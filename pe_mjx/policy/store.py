@@ -34,7 +34,7 @@ from pe_mjx.networks import make_network
 from pe_mjx.policy import packed
 from pe_mjx.policy.inference import dummy_obs, init_normalizer
 from pe_mjx.policy.quiet import quiet_logs
-from pe_mjx.policy.shipped import resolve_run
+from pe_mjx.policy.shipped import resolve_run, retired_note
 
 FORMAT_VERSION = 2
 READABLE_FORMATS = (1, 2)
@@ -112,7 +112,9 @@ def manager(run_dir: Path, create: bool) -> ocp.CheckpointManager:
 
 def latest_step(run_dir: Path) -> int:
     if not run_dir.exists():
-        raise CheckpointError(f"no run at {run_dir}: the directory does not exist")
+        raise CheckpointError(
+            retired_note(run_dir) or f"no run at {run_dir}: the directory does not exist"
+        )
     if packed.is_packed(run_dir):
         raise CheckpointError(
             f"{run_dir} is a packed policy ({packed.PACKED_FILE}): it plays, but holds no "

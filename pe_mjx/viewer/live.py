@@ -27,7 +27,7 @@ from pe_mjx.outcomes import outcome_counts
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.inference import dummy_obs
 from pe_mjx.policy.resolve import resolve_policy
-from pe_mjx.policy.shipped import resolve_run
+from pe_mjx.policy.shipped import resolve_run, retired_note
 from pe_mjx.policy.store import CheckpointError
 from pe_mjx.rollout import freeze
 from pe_mjx.viewer.guard import PolicyAccess
@@ -96,8 +96,11 @@ def load_team_policy(
             )
         if not resolve_run(spec).exists():
             raise PolicyError(
-                f"{team} policy {spec!r}: not one of {', '.join(BUILTIN_POLICIES)} and no such "
-                f"directory"
+                f"{team} policy {spec!r}: "
+                + (
+                    retired_note(spec)
+                    or f"not one of {', '.join(BUILTIN_POLICIES)} and no such directory"
+                )
             )
     try:
         policy = resolve_policy(spec, team, config, deterministic)
