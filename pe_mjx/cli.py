@@ -439,7 +439,7 @@ def _one_line(box: str) -> str:
     return message or "invalid arguments (see --help)"
 
 
-def _parse(parse: Callable[[], object]) -> object:
+def _parse(parse: Callable[[], object], argv: list[str]) -> object:
     """Runs a tyro parse; its errors become one line `pe-mjx: error: ...` and exit code 2."""
     captured = io.StringIO()
     try:
@@ -449,10 +449,29 @@ def _parse(parse: Callable[[], object]) -> object:
         if exit_.code in (0, None):
             sys.stderr.write(captured.getvalue())
             raise
-        _fail(_one_line(captured.getvalue()))
+        _fail(_missing_value(_one_line(captured.getvalue()), argv))
     except ValueError as err:  # a config check that failed while the flags were parsed
         _fail(_flag_message(str(err)))
     raise AssertionError("unreachable")
+
+
+def _missing_value(message: str, argv: list[str]) -> str:
+    """tyro's "Missing argument Missing value for argument '--suffix'. Expected 1 values." as
+    "--suffix needs a value". argparse reads a word that starts with "-" as a flag, not as the
+    value before it (`--suffix -s1-3m`); where that happened the line says how to pass it."""
+    found = re.fullmatch(
+        r"Missing argument Missing value for argument '(-[\w.-]+)'\. Expected (\d+) values?\.",
+        message,
+    )
+    if found is None:
+        return message
+    flag, count = found.group(1), int(found.group(2))
+    said = f"{flag} needs a value" if count == 1 else f"{flag} needs {count} values"
+    at = argv.index(flag) if flag in argv else -1
+    after = argv[at + 1] if 0 <= at < len(argv) - 1 else ""
+    if count == 1 and after.startswith("-") and after not in ("-h", "--help"):
+        said += f" ({after} reads as a flag; give it as {flag}={after})"
+    return said
 
 
 def _flag_message(message: str) -> str:
@@ -513,11 +532,13 @@ def main(argv: list[str] | None = None) -> None:
                 default=default,
                 prog=f"pe-mjx {argv[0]}",
                 description=cls.__doc__,
-            )
+            ),
+            argv,
         )
     else:
         args = _parse(
-            lambda: tyro.extras.subcommand_cli_from_dict(subcommands, args=argv, prog="pe-mjx")
+            lambda: tyro.extras.subcommand_cli_from_dict(subcommands, args=argv, prog="pe-mjx"),
+            argv,
         )
     # Ctrl-C and `kill` stop every command the same way (a KeyboardInterrupt: the viewer shuts
     # its server down, training keeps its last atomic checkpoint), with watchdogs.

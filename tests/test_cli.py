@@ -73,6 +73,32 @@ def test_bad_arguments_exit_nonzero(tmp_path, args, needle):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (
+            ["reproduce", "--skip-train", "--suffix", "-s1-3m"],
+            "--suffix needs a value (-s1-3m reads as a flag; give it as --suffix=-s1-3m)",
+        ),
+        (["scene", "--preset"], "--preset needs a value"),
+        (
+            ["evaluate", "--trials", "--seed", "1"],
+            "--trials needs a value (--seed reads as a flag; ",
+        ),
+    ],
+)
+def test_a_flag_without_its_value_says_how_to_give_one(argv, said, capsys):
+    """argparse reads a word that starts with "-" as the next flag, so `--suffix -s1-3m` leaves
+    --suffix without a value: the one line names the flag and the `--flag=value` form."""
+    from pe_mjx import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2
+    assert err.startswith(f"pe-mjx: error: {said}") and err.count("\n") == 1, err
+
+
 def test_output_is_a_directory(tmp_path):
     (tmp_path / "d").mkdir()
     result = run_cli("scene", "--preset", "2-1-1", "-o", "d", "--force", cwd=tmp_path)
