@@ -11,7 +11,7 @@ import numpy as np
 
 from pe_mjx import interrupts, outputs
 from pe_mjx.ppo import curves
-from pe_mjx.ppo.curves import CURVES_FILE
+from pe_mjx.ppo.curves import CURVES_FILE, curves_file
 from pe_mjx.trajectory import Trajectory
 
 CURVES = {
@@ -32,7 +32,7 @@ MAX_EVENTS_BYTES = 256 << 20
 
 
 def read_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
-    """tag -> [(env_steps, value)] of a run: from its compact curves (`curves.csv.gz`), or, for
+    """tag -> [(env_steps, value)] of a run: from its compact curves (`curves.csv.xz`), or, for
     a run written before those existed, from its TensorBoard events under `run_dir/tb`.
 
     Iterations in which no arena finished carry no episode statistics and are dropped from the
@@ -41,7 +41,7 @@ def read_scalars(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
     Raises:
       CurvesError: the curves file is damaged (one line naming it).
     """
-    path = Path(run_dir) / CURVES_FILE
+    path = curves_file(run_dir)
     out = curves.scalars(curves.read_rows(path)) if path.exists() else _tensorboard_scalars(run_dir)
     finished = dict(out.get("episode/finished", []))
     for tag in list(out):

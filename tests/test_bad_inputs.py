@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import lzma
 import os
 import shutil
 import subprocess
@@ -17,6 +18,7 @@ import pytest
 
 from pe_mjx.cli import main
 from pe_mjx.ppo.checkpoint import lock_run
+from pe_mjx.ppo.curves import CURVES_FILE, LEGACY_FILE
 from tests.policy_copies import orbax_copy
 from tests.ratings.test_board import TABLE_III
 
@@ -178,11 +180,14 @@ def _crafted_inputs(root: Path, shipped: Path) -> None:
     far["poses"] = far["poses"] * np.float32(1e30)
     np.savez(replays / "far_poses.npz", **far)
     curves = root / "curves"
-    for name, row in (("inf_steps", "1e400,1,0.5"), ("nan_value", "100,1,nan"),
-                      ("negative_steps", "-100,1,0.5")):  # fmt: skip
+    for name, row, file in (("inf_steps", "1e400,1,0.5", CURVES_FILE),
+                            ("nan_value", "100,1,nan", CURVES_FILE),
+                            ("negative_steps", "-100,1,0.5", CURVES_FILE),
+                            ("legacy_gzip_nan", "100,1,nan", LEGACY_FILE)):  # fmt: skip
         (curves / name).mkdir(parents=True)
-        text = f"env_steps,wall_time,eval/pursuer_vs_scripted/success_rate\n{row}\n"
-        (curves / name / "curves.csv.gz").write_bytes(gzip.compress(text.encode()))
+        text = f"env_steps,wall_time,eval/pursuer_vs_scripted/success_rate\n{row}\n".encode()
+        packed = gzip.compress(text) if file == LEGACY_FILE else lzma.compress(text)
+        (curves / name / file).write_bytes(packed)
     for name in ("tb_garbage", "tb_zero", "tb_fifo"):
         (curves / name / "tb").mkdir(parents=True)
     record = b"\xff\xff\xff\xff\x0f"  # not an Event protobuf

@@ -61,7 +61,7 @@ def test_no_tensorboard_events_and_no_train_state_of_a_finished_run():
     for run in {Path(*Path(p).parts[:3]) for p in files if Path(p).parts[1:2] == ("runs",)}:
         if run.name != "README.md":
             assert (ROOT / run / "config.json").is_file(), run
-            assert (ROOT / run / "curves.csv.gz").is_file(), run
+            assert (ROOT / run / "curves.csv.xz").is_file(), run
 
 
 _LINK = re.compile(r"\]\(([^)\s#]+)(?:#[^)]*)?\)")

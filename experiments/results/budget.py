@@ -8,7 +8,7 @@ Table III (`pe_mjx.paper.PAPER`), and writes `docs/data/paper-10m/budget.md`: tw
 evaders as rows and pursuers as columns (the scripted teams included), one of success and one of
 per-evader cost, each cell "10M (3M; paper)". Only methods with a 10M policy appear. It also
 draws `docs/figures/curves-20-5-8-10m.png` from the committed curves of the 10M runs
-(`train/runs/<method>-20-5-8-10m/curves.csv.gz`), with their 3M seed-0 runs
+(`train/runs/<method>-20-5-8-10m/curves.csv.xz`), with their 3M seed-0 runs
 (`train/runs/<method>-20-5-8-s0`) dashed: each learned team against the scripted opponent.
 """
 

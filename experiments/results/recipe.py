@@ -4,7 +4,7 @@ leaves open, its hyperparameters beside the paper's, and what each of the page's
     python -m experiments.results.recipe [--out docs/data/recipe]
 
 Reads the code's defaults (`pe_mjx.experiment.default_config("20-5-8")`), the config and the
-curves of every committed run (`train/runs/*/config.json`, `curves.csv.gz`), the evaluation
+curves of every committed run (`train/runs/*/config.json`, `curves.csv.xz`), the evaluation
 reports each table of the page is read from (the policies they played, `meta.seconds`), and
 the committed measurements a deviation cites (the evader diagnosis, the backend comparison, the
 seed spread); beside them `pe_mjx.paper.SETTINGS`, what the paper says of each setting, in its own
@@ -415,7 +415,7 @@ def compute_markdown(data: dict) -> str:
     text = (
         f"Wall hours on a {data['machine']['cpu_cores']}-core CPU, no GPU, mostly shared with "
         "other jobs. Training: the intervals between the rows of each run's "
-        f"`train/runs/<run>/curves.csv.gz`; one over {data['pause_s'] // 60} minutes is a pause "
+        f"`train/runs/<run>/curves.csv.xz`; one over {data['pause_s'] // 60} minutes is a pause "
         "between resumed chunks and counts as the run's median interval. A table's runs are "
         "those whose policies its evaluations played (shared runs count in each table). "
         "Evaluation: `meta.seconds` of its reports, plus the recorded play time of each "

@@ -17,7 +17,7 @@ from typing import Any
 
 from pe_mjx import outputs
 from pe_mjx.ppo.checkpoint import CheckpointError, read_host_state, resumable_meta, save_learners
-from pe_mjx.ppo.curves import CURVES_FILE
+from pe_mjx.ppo.curves import curves_file
 
 
 def write_resumable_copy(
@@ -40,7 +40,7 @@ def write_resumable_copy(
     stage = outputs.temp_path(target, keep_suffix=False)
     stage.mkdir()
     try:
-        for name in ("config.json", CURVES_FILE):
+        for name in ("config.json", curves_file(run_dir).name):
             if (run_dir / name).is_file():
                 shutil.copy2(run_dir / name, stage / name)
         save_learners(stage, state, meta)

@@ -1,5 +1,5 @@
 """The loop around the jitted training iteration: progress, TensorBoard and the compact curves
-(`curves.csv.gz`), evaluation, checkpoints.
+(`curves.csv.xz`), evaluation, checkpoints.
 
 By role: `pe_mjx.ppo.run_files` writes config.json and reads a run's saved config back (for
 `--resume`), `pe_mjx.ppo.loggers` holds the progress columns and the loggers; this module starts

@@ -551,7 +551,7 @@ def test_a_resumable_copy_keeps_the_learners_and_the_run_goes_on_from_it(runs, t
     main(["ship", str(split), "split-copy", "--dest", str(tmp_path), "--resumable", "--step", "2"])
     copy = tmp_path / "split-copy"
     assert "continue it with `pe-mjx train --resume" in capsys.readouterr().out
-    assert sorted(p.name for p in copy.iterdir()) == ["checkpoints", "config.json", "curves.csv.gz"]
+    assert sorted(p.name for p in copy.iterdir()) == ["checkpoints", "config.json", "curves.csv.xz"]
     assert [p.name for p in (copy / "checkpoints").iterdir()] == ["2"]
     step = copy / "checkpoints" / "2"
     assert sorted(p.name for p in step.iterdir() if p.is_dir()) == ["meta", "train"]
@@ -572,10 +572,10 @@ def test_a_resumable_copy_keeps_the_learners_and_the_run_goes_on_from_it(runs, t
         load_policy(copy, team="pursuer")
     # The run goes on from the copy to its budget; the curves' rows after iteration 2 (the run
     # had gone on to 4 before it was copied) are those of the resumed run.
-    before = read_rows(copy / "curves.csv.gz")
+    before = read_rows(copy / "curves.csv.xz")
     _, done = train(resume_config(copy), copy, resume=True, progress=False)
     assert int(done.iteration) == 4
-    after = read_rows(copy / "curves.csv.gz")
+    after = read_rows(copy / "curves.csv.xz")
     assert [r["env_steps"] for r in after] == [64, 128, 192, 256]
     assert after[1] == before[1] and after[-1]["wall_time"] > before[-1]["wall_time"]
     load_policy(copy, team="pursuer")  # its own new checkpoint plays

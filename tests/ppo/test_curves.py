@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import gzip
+import lzma
 
 import pytest
 
 from pe_mjx.ppo.curves import (
     CURVES_FILE,
+    LEGACY_FILE,
     CurveLog,
     CurvesError,
+    curves_file,
     read_rows,
     scalars,
     training_time,
@@ -25,9 +28,27 @@ def test_rows_round_trip_with_gaps_and_non_finite_values(tmp_path):
     rows = read_rows(tmp_path / CURVES_FILE)
     assert [r["env_steps"] for r in rows] == [100, 200]
     assert scalars(rows) == {"loss/a": [(100, 1.5), (200, 2.25)], "eval/x": [(200, 0.5)]}
-    with gzip.open(tmp_path / CURVES_FILE, "rt") as f:
+    with lzma.open(tmp_path / CURVES_FILE, "rt") as f:  # plain xz: pandas reads it as it is
         header = f.readline().strip().split(",")
     assert header == ["env_steps", "wall_time", "eval/x", "loss/a"]
+    before = (tmp_path / CURVES_FILE).read_bytes()
+    write_rows(tmp_path / CURVES_FILE, rows)  # the same rows, the same bytes (no time stamp)
+    assert (tmp_path / CURVES_FILE).read_bytes() == before
+
+
+def test_a_run_written_as_gzip_is_read_and_resumed_into_one_xz_file(tmp_path):
+    """Runs from before the xz format keep a curves.csv.gz: plotted and summarised as they are,
+    and a resumed run rewrites its points as curves.csv.xz and drops the gzip file."""
+    text = b"env_steps,wall_time,v\n100,1.0,1\n200,2.0,2\n300,3.0,3\n"
+    (tmp_path / LEGACY_FILE).write_bytes(gzip.compress(text))
+    assert curves_file(tmp_path) == tmp_path / LEGACY_FILE
+    assert scalars(read_rows(curves_file(tmp_path)))["v"] == [(100, 1.0), (200, 2.0), (300, 3.0)]
+    resumed = CurveLog(tmp_path, resume_at=200)
+    resumed.add(300, {"v": 30.0})
+    resumed.flush()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CURVES_FILE]
+    assert curves_file(tmp_path) == tmp_path / CURVES_FILE
+    assert scalars(read_rows(tmp_path / CURVES_FILE))["v"] == [(100, 1.0), (200, 2.0), (300, 30.0)]
 
 
 def test_diagnostics_keep_4_digits_and_episode_and_eval_tags_6(tmp_path):
@@ -60,7 +81,7 @@ def test_resume_drops_the_points_logged_after_the_checkpoint(tmp_path):
 @pytest.mark.parametrize(
     "content",
     [
-        b"not gzip at all",
+        b"not xz at all",
         b"step,value\n1,2\n",
         b"env_steps,wall_time,v\n1,2\n",
         b"env_steps,wall_time,v\n1,2,abc\n",
@@ -73,7 +94,7 @@ def test_resume_drops_the_points_logged_after_the_checkpoint(tmp_path):
     # The writer never writes nan, inf or a fractional step (`_cell`): 1e400 steps was an
     # OverflowError traceback, the others a plot of nonsense.
     ids=[
-        "not-gzip",
+        "not-xz",
         "no-env-steps",
         "short-row",
         "not-a-number",
@@ -85,17 +106,19 @@ def test_resume_drops_the_points_logged_after_the_checkpoint(tmp_path):
     ],
 )
 def test_damaged_files_are_one_clear_error(tmp_path, content):
-    """(The gzip bytes are made in the test, not in the parameters: their header holds the time
+    """Each damage in the xz file of today's runs and in the gzip one of older runs. (The
+    compressed bytes are made in the test, not in the parameters: a gzip header holds the time
     of day, and two test workers that collected a second apart disagreed on the test ids.)"""
-    path = tmp_path / CURVES_FILE
-    if content.startswith(b"not gzip"):
-        path.write_bytes(content)
-    elif content.endswith(b"1,2,3\n"):
-        path.write_bytes(gzip.compress(content)[:-6])
-    else:
-        path.write_bytes(gzip.compress(content))
-    with pytest.raises(CurvesError, match=CURVES_FILE):
-        read_rows(path)
+    for name, compress in ((CURVES_FILE, lzma.compress), (LEGACY_FILE, gzip.compress)):
+        path = tmp_path / name
+        if content.startswith(b"not xz"):
+            path.write_bytes(content)
+        elif content.endswith(b"1,2,3\n"):
+            path.write_bytes(compress(content)[:-6])
+        else:
+            path.write_bytes(compress(content))
+        with pytest.raises(CurvesError, match=name):
+            read_rows(path)
 
 
 def test_a_decompression_bomb_is_refused_before_it_is_read_whole(tmp_path, monkeypatch):
@@ -103,10 +126,12 @@ def test_a_decompression_bomb_is_refused_before_it_is_read_whole(tmp_path, monke
 
     monkeypatch.setattr(curves, "MAX_BYTES", 1000)
     path = tmp_path / CURVES_FILE
-    path.write_bytes(gzip.compress(b"env_steps,v\n" + b"1,2\n" * 10_000))
-    assert path.stat().st_size < 1000
-    with pytest.raises(CurvesError, match="larger than"):
-        read_rows(path)
+    for name, compress in ((CURVES_FILE, lzma.compress), (LEGACY_FILE, gzip.compress)):
+        path = tmp_path / name
+        path.write_bytes(compress(b"env_steps,v\n" + b"1,2\n" * 10_000))
+        assert path.stat().st_size < 1000
+        with pytest.raises(CurvesError, match="larger than"):
+            read_rows(path)
 
 
 def test_a_pause_between_resumed_chunks_counts_as_one_median_interval():
