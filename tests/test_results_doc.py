@@ -125,10 +125,10 @@ def test_the_pages_other_tables_are_rows_of_their_reports():
     seeds = _section(page, "### Three seeds at 20-5-8 (3M)")
     reports = "\n".join(
         (DATA / "coev-seeds-3m" / method / "seeds.md").read_text()
-        for method in ("mix", "mean", "mlp")
+        for method in ("mix", "mean", "mlp", "birnn")
     )
     quoted = [r for r in _table_rows(seeds) if r.startswith("| E_")]
-    assert len(quoted) == 9
+    assert len(quoted) == 12
     assert set(quoted) <= set(_table_rows(reports))
     budget = _section(page, "### Table III at 10M env steps (MJX)")
     report = (DATA / "paper-10m" / "budget.md").read_text()
