@@ -40,6 +40,7 @@ SOURCES = (
     "paper-3m-scales/**/*.json",
     "paper-10m/**/*.json",
     "coev-seeds-3m/*/seeds.json",
+    "paper-3m-seeds/seeds.json",
     "large-scale/summary.json",
     "transfer-240-60-120-3m/results.json",
     "arena-240-60-120/results.json",
@@ -118,7 +119,7 @@ def test_each_paper_table_on_the_page_is_ours_beside_the_papers(table):
 
 
 def test_the_pages_other_tables_are_rows_of_their_reports():
-    """The seed table quotes experiments/results/seed_spread.py's reports, the 10M tables
+    """The seed tables quote experiments/results/seed_spread.py's reports, the 10M tables
     experiments/results/budget.py's, the 240-60-120 table experiments/results/large_scale.py's
     summary, each row as written there."""
     page = PAGE.read_text()
@@ -130,6 +131,12 @@ def test_the_pages_other_tables_are_rows_of_their_reports():
     quoted = [r for r in _table_rows(seeds) if r.startswith("| E_")]
     assert len(quoted) == 12
     assert set(quoted) <= set(_table_rows(reports))
+    over = _section(page, "### Table III over three seeds (3M)")
+    report = (DATA / "paper-3m-seeds" / "seeds.md").read_text()
+    matrix = report.split("\nSuccess, evaders", 1)[1].split("\nPer-evader cost, evaders", 1)[0]
+    quoted = [r for r in _table_rows(over) if r.startswith("| E_")]
+    assert len(quoted) == 5
+    assert quoted == [r for r in _table_rows(matrix) if r.startswith("| E_")]
     budget = _section(page, "### Table III at 10M env steps (MJX)")
     report = (DATA / "paper-10m" / "budget.md").read_text()
     quoted = [r for r in _table_rows(budget) if r.startswith("| E_")]
@@ -147,7 +154,7 @@ def test_the_recipe_tables_are_rows_of_their_reports():
     page = PAGE.read_text()
     recipe = _section(page, "## Recipe: deviations, hyperparameters, compute")
     quoted = [r for r in _table_rows(recipe) if not r.startswith("|---")]
-    for name, rows in (("deviations", 12), ("hyperparameters", 11), ("compute", 8)):
+    for name, rows in (("deviations", 12), ("hyperparameters", 11), ("compute", 9)):
         report = (DATA / "recipe" / f"{name}.md").read_text().replace("](../../", "](")
         written = [r for r in _table_rows(report) if not r.startswith("|---")]
         on_page = [r for r in written if r in quoted]

@@ -48,6 +48,7 @@ TABLES = {
     "V": ("paper-3m-scales/table-V",),
     "VI": ("paper-3m-scales/table-VI",),
     "Three seeds at 20-5-8": ("coev-seeds-3m/*-s[0-9]",),
+    "Table III, seeds 1 and 2": ("paper-3m-s[0-9]/table-III",),  # seed 0's: Table III's row
     "240-60-120": ("large-scale/*/*",),
     "Ablations": ("ablations/*",),
 }
