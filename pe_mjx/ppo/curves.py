@@ -83,8 +83,9 @@ def read_rows(path: str | Path) -> list[dict[str, float]]:
             raise CurvesError(f"{path} is not a regular file")
         with open(path, "rb") as raw:
             gzipped = raw.read(2) == b"\x1f\x8b"  # by its bytes, not its name
-        with (gzip.open if gzipped else lzma.open)(path, "rb") as f:
-            data = f.read(MAX_BYTES + 1)
+            raw.seek(0)
+            with gzip.GzipFile(fileobj=raw) if gzipped else lzma.LZMAFile(raw) as f:
+                data = f.read(MAX_BYTES + 1)
     except (OSError, EOFError, lzma.LZMAError) as err:  # gzip.BadGzipFile is an OSError
         kind = "gzip" if gzipped else "xz"
         raise CurvesError(f"{path}: not a readable {kind} file ({err})") from None
