@@ -11,18 +11,19 @@ the MEAN and BIRNN co-evolutions' pursuers with k = 4); and in every scene the e
 same policy fine-tuned at 60-15-30 (`e-mix-k4-ft-60-15-30`) and then at 240-60-120
 (`e-mix-k4-ft-240-60-120`) against the local and the scripted pursuers; and in every scene the
 pursuers fine-tuned at 240-60-120 against that evader (`p-mix-k4-ft-240-60-120`), and those
-fine-tuned again at 20-5-8 (train/unfinished/p-mix-k4-ft8-20-5-8), against every evader above;
+fine-tuned again at 20-5-8 (train/runs/p-mix-k4-ft8-20-5-8), against every evader above;
 and at 240-60-120, k = 1 and 2 against the evader fine-tuned there; and in every scene, against
 every evader above, the local pursuers reading the distances to their neighbours in units of
 5 m (`NetworkConfig.length_unit`, no training) and those fine-tuned at 240-60-120
 (`p-mix-k4-5m-ft-240-60-120`); and at 240-60-120, every pursuer fine-tuned there, the local and
 the scripted pursuers against the evader fine-tuned in turn against the last
-(train/unfinished/e-mix-k4-ft2-240-60-120).
+(train/runs/e-mix-k4-ft2-240-60-120).
 Each (scene, part) is one `pe-mjx evaluate` report under OUT/<scene>/<part>/; OUT/summary.json
 and OUT/summary.md gather the headline numbers that docs/results.md quotes: those of every scene
-with reports under OUT, whichever `--scenes` played. A part whose
-results.json exists is kept (delete it to play it again), so an interrupted run continues where
-it stopped.
+with reports under OUT, whichever `--scenes` played, each row with its part, and each part with
+the code version that played it (`provenance`: the page quotes only parts played from a clean
+commit). A part whose results.json exists is kept (delete it to play it again), so an
+interrupted run continues where it stopped.
 
 The held-out scenes keep 24-6-12's density (area per entity), as the 240-60-120 preset does:
 arena radius 5 m x sqrt(entities / 42).
@@ -54,13 +55,13 @@ TUNED_EVADERS = {
 cards in assets/policies/README.md): at 60-15-30, then that one again at 240-60-120."""
 TUNED_PURSUERS = {
     "tuned-pursuer": "p-mix-k4-ft-240-60-120",
-    "tuned-pursuer-then-20-5-8": str(ROOT / "train" / "unfinished" / "p-mix-k4-ft8-20-5-8"),
+    "tuned-pursuer-then-20-5-8": str(ROOT / "train" / "runs" / "p-mix-k4-ft8-20-5-8"),
     "tuned-pursuer-5m": "p-mix-k4-5m-ft-240-60-120",
 }
 """Part -> LOCAL's pursuers fine-tuned at 240-60-120 against the frozen `e-mix-k4-ft-240-60-120`
 with the pursuit shaping summed over the 4 nearest evaders (`reward.pursuit_nearest = 4`); and
-those fine-tuned again, at 20-5-8 against the frozen full-attention E_MIX (a run directory: its
-last checkpoint); and METRES's pursuers (neighbour distances in units of 5 m) fine-tuned at
+those fine-tuned again, at 20-5-8 against the frozen full-attention E_MIX (a finished run's
+directory: its policy); and METRES's pursuers (neighbour distances in units of 5 m) fine-tuned at
 240-60-120 the same way as the first."""
 ABLATION = (
     (FULL, 1),
@@ -72,9 +73,9 @@ ABLATION = (
 )
 """(policy, k) pairs of the ablation at the largest scene: k for MIX, and MEAN's pooling and
 BIRNN's recurrence made local with the same k as the shipped MIX."""
-NEXT_EVADER = str(ROOT / "train" / "unfinished" / "e-mix-k4-ft2-240-60-120")
+NEXT_EVADER = str(ROOT / "train" / "runs" / "e-mix-k4-ft2-240-60-120")
 """`e-mix-k4-ft-240-60-120` fine-tuned once more at 240-60-120, against the frozen
-`p-mix-k4-5m-ft-240-60-120` (a run directory: its last checkpoint); played there only."""
+`p-mix-k4-5m-ft-240-60-120` (a finished run's directory: its policy); played there only."""
 METRES = (FULL, 4, 5.0)
 """LOCAL reading the distances to its neighbours in units of 5 m, 20-5-8's arena radius, in
 every arena (`NetworkConfig.length_unit`; pe-mjx ship --nearest-k 4 --length-unit 5):
@@ -95,7 +96,7 @@ class Args:
 
 
 def play(args: Args) -> dict:
-    summary: dict = {"trials": {}, "scenes": {}}
+    summary: dict = {"trials": {}, "scenes": {}, "provenance": {}}
     with tempfile.TemporaryDirectory() as tmp:
         variants = {}  # path of the local copy -> its name
         for source, k, unit in [*((source, k, None) for source, k in ABLATION), METRES]:
@@ -155,10 +156,12 @@ def play(args: Args) -> dict:
                     )
                 data = json.loads((out / "results.json").read_text())
                 summary["trials"][name] = trials
+                summary["provenance"][f"{name}/{part}"] = data["meta"].get("code_version")
                 for pairing in data["pairings"]:
                     key = f"{_spec_name(pairing['pursuer']['source'], variants)} vs "
                     key += _spec_name(pairing["evader"]["source"], variants)
-                    summary["scenes"].setdefault(name, {})[key] = _summary_row(pairing)
+                    row = {**_summary_row(pairing), "part": part}
+                    summary["scenes"].setdefault(name, {})[key] = row
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     (args.out / "summary.md").write_text(markdown(summary))

@@ -6,8 +6,8 @@ leaves open, its hyperparameters beside the paper's, and what each of the page's
 Reads the code's defaults (`pe_mjx.experiment.default_config("20-5-8")`), the config and the
 curves of every committed run (`train/runs/*/config.json`, `curves.csv.xz`), the evaluation
 reports each table of the page is read from (the policies they played, `meta.seconds`), and
-the committed measurements a deviation cites (the evader diagnosis, the backend comparison, the
-seed spread); beside them `pe_mjx.paper.SETTINGS`, what the paper says of each setting, in its own
+the committed measurements a deviation cites (the evader diagnosis, the ablations, the seed
+spread); beside them `pe_mjx.paper.SETTINGS`, what the paper says of each setting, in its own
 words, and `pe_mjx.paper.hyperparameters`, the defaults' settings beside them. Writes
 OUT/recipe.json and three tables, OUT/deviations.md, OUT/hyperparameters.md and OUT/compute.md,
 which docs/results.md quotes row for row (the links of these files point from OUT; the page's,
@@ -38,6 +38,8 @@ from pe_mjx.ppo.curves import CURVES_FILE, PAUSE_S, read_rows
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "docs" / "data"
 RUNS = ROOT / "train" / "runs"
+SCENES_BEYOND = ("240-60-120", "120-30-60", "60-15-30", "20-5-8")
+"""The scenes of the page's 240-60-120 table (experiments/results/large_scale.py's)."""
 # The evaluations each table of docs/results.md is read from (globs under docs/data; its test,
 # tests/test_results_doc.py, reads Tables II-VI from the same).
 TABLES = {
@@ -49,7 +51,15 @@ TABLES = {
     "VI": ("paper-3m-scales/table-VI",),
     "Three seeds at 20-5-8": ("coev-seeds-3m/*-s[0-9]",),
     "Table III, seeds 1 and 2": ("paper-3m-s[0-9]/table-III",),  # seed 0's: Table III's row
-    "240-60-120": ("large-scale/*/*",),
+    # The parts of experiments/results/large_scale.py that the page's table quotes, and the two
+    # single evaluations beside it (the full-attention transfer and the picture's replay).
+    "240-60-120": (
+        *(f"large-scale/240-60-120/{p}" for p in ("main", "tuned-evader-240", "next-evader")),
+        *(f"large-scale/{s}/tuned-pursuer-5m" for s in SCENES_BEYOND),
+        "large-scale/20-5-8/tuned-pursuer",
+        "transfer-240-60-120-3m",
+        "arena-240-60-120",
+    ),
     "Ablations": ("ablations/*",),
 }
 # A policy shipped from a seed-0 co-evolution (`mix-20-5-8-3m`), or the same parameters read
@@ -151,7 +161,6 @@ def measurements() -> dict:
     """The committed numbers the deviations table cites, each with the file it is read from."""
     diagnosis = {r["run"]: r for r in read_json(DATA / "evader_diagnosis.json")}
     reference = read_json(DATA / "evader_diagnosis_reference.json")["experiment"]
-    backend = read_json(DATA / "backend_training.json")
     ablations = DATA / "ablations" / "effects.json"  # experiments/results/ablations.py
     spread = {}  # the methods with three seeds at 20-5-8, in the page's order
     for method in [m for m in ENCODERS if (DATA / "coev-seeds-3m" / m / "seeds.json").is_file()]:
@@ -170,11 +179,6 @@ def measurements() -> dict:
                 }
                 for key, run in DIAGNOSIS.items()
             },
-        },
-        "backend": {
-            "source": "docs/data/backend_training.json",
-            "preset": backend["args"]["preset"],
-            **{r["backend"]: r["success_rate"] for r in backend["results"]},
         },
         "ablations": read_json(ablations) if ablations.is_file() else {},
         "seeds": {
@@ -260,7 +264,7 @@ def training_rows(
 ) -> list[tuple[str, ...]]:
     """The network, the PPO settings, the backend, the budget and the seeds."""
     ppo = config.ppo
-    kinematic, mjx, preset = (measured["backend"][k] for k in ("kinematic", "mjx", "preset"))
+    at_10m = sorted({experiment(run).backend for run in RUNS.glob("*-20-5-8-10m")})
     spread = measured["seeds"]["self_match_success_std"]
     return [
         (
@@ -284,13 +288,13 @@ def training_rows(
         (
             "Backend of the published numbers",
             f"{', '.join(sorted({c.backend for c in runs.values()}))} (exact unicycle arcs) in "
-            f"every table; the code's default is {config.backend}",
+            f"Tables II-VI; {', '.join(at_10m)} in Table III at 10M; the code's default is "
+            f"{config.backend}",
             says("backend"),
             "faster on this CPU: training by 14% at 20-5-8, evaluation several times "
             f"([benchmarks]({DOCS}/benchmarks.md))",
-            f"{preset} learning test, one seed: the scripted pursuers catch "
-            f"{kinematic['mean']:.3f} ± {kinematic['ci95']:.3f} of the evader trained on "
-            f"kinematic, {mjx['mean']:.3f} ± {mjx['ci95']:.3f} on MJX (`backend_training.json`)",
+            "not yet ablated (Table III at 10M changes the budget as well); a 4-1-2 probe whose "
+            f"script was not kept: [benchmarks]({DOCS}/benchmarks.md)",
         ),
         (
             "Budget",
