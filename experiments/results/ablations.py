@@ -13,6 +13,9 @@ and per-evader cost of the pairings that tell the two apart:
 * each one's pursuers against the scripted evader;
 * each one's pursuers against the other's evaders (the cross-confrontation);
 * each one against itself;
+* where the spec names a third co-evolution (`also`), each one's pursuers against its evaders and
+  its pursuers against each one's evaders (the 1M ablation against the 3M MIX as well as against
+  its 1M twin);
 
 and one sentence that `experiments/results/recipe.py` quotes in the deviations table's
 "Measured effect" column. One seed each (seed 0), so an effect smaller than the seed spread of
@@ -41,6 +44,7 @@ ABLATIONS = {
         "evaluation": "ablations/queries-all-1m",
         "ablated": "mix-20-5-8-queries-all-1m",
         "ours": "mix-20-5-8",
+        "also": "mix-20-5-8-3m",
     },
 }
 
@@ -73,6 +77,10 @@ def effect(spec: dict) -> dict | None:
         "cross": (ablated, ours, ours, ablated),
         "self": (ablated, ablated, ours, ours),
     }
+    also = spec.get("also")
+    if also:
+        rows["against_also"] = (ablated, also, ours, also)
+        rows["also_against"] = (also, ablated, also, ours)
     table = {}
     for name, (p_a, e_a, p_o, e_o) in rows.items():
         a, o = summaries[p_a, e_a], summaries[p_o, e_o]
@@ -91,6 +99,13 @@ def effect(spec: dict) -> dict | None:
         f"evader (ours {rate['scripted_evader']['ours']} at {cost['ours']}); across, its pursuers "
         f"catch {rate['cross']['ablated']} of our evaders and ours {rate['cross']['ours']} of its"
     )
+    if also:
+        text += (
+            f"; against `{also}`, its pursuers catch {rate['against_also']['ablated']} of those "
+            f"evaders (ours {rate['against_also']['ours']}) and those pursuers "
+            f"{rate['also_against']['ablated']} of its evaders (of ours "
+            f"{rate['also_against']['ours']})"
+        )
     return {**spec, "trials": results["meta"]["trials"], "pairings": table, "text": text}
 
 
@@ -99,6 +114,8 @@ LABELS = {
     "scripted_evader": "its pursuers against the scripted evader",
     "cross": "its pursuers against the other's evaders",
     "self": "against itself",
+    "against_also": "its pursuers against the evaders of `{also}`",
+    "also_against": "the pursuers of `{also}` against its evaders",
 }
 
 
@@ -116,7 +133,8 @@ def markdown(effects: dict) -> str:
         for name, row in e["pairings"].items():
             a, o = row["ablated"], row["ours"]
             lines.append(
-                f"| {key} | {LABELS[name]} | {a['success_rate']:.3f} [{a['per_evader_cost']:.3f}] "
+                f"| {key} | {LABELS[name].format(also=e.get('also'))} "
+                f"| {a['success_rate']:.3f} [{a['per_evader_cost']:.3f}] "
                 f"| {o['success_rate']:.3f} [{o['per_evader_cost']:.3f}] |"
             )
     return "\n".join(lines) + "\n"
