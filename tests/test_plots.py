@@ -67,3 +67,30 @@ def test_an_animation_refuses_a_frame_rate_a_gif_cannot_hold(tmp_path):
         with pytest.raises(ValueError, match=r"--fps must be in \[1, 100\]"):
             plots.animate_trajectory(traj, tmp_path / "a.gif", fps=fps)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_committed_figure_is_a_palette_png_smaller_than_matplotlibs(tmp_path):
+    """docs/figures are written by `plots.save_palette_png`: at most 256 colours, the same bytes
+    for the same figure, and smaller than matplotlib's RGBA file of it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from PIL import Image
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    x = np.linspace(0, 3e6, 40)
+    for k in range(4):
+        ax.plot(x, 1 - np.exp(-x / (5e5 * (k + 1))), marker="o", label=f"seed {k}")
+        ax.fill_between(x, 0.9 - np.exp(-x / (4e5 * (k + 1))), 1, alpha=0.2)
+    ax.legend()
+    first = plots.save_palette_png(fig, tmp_path / "a.png", dpi=100)
+    plots.save_palette_png(fig, tmp_path / "b.png", dpi=100)
+    fig.savefig(tmp_path / "rgba.png", dpi=100)
+    plt.close(fig)
+    assert first.read_bytes() == (tmp_path / "b.png").read_bytes()
+    with Image.open(first) as image, Image.open(tmp_path / "rgba.png") as rgba:
+        assert image.mode == "P" and image.size == rgba.size
+        assert len(image.getcolors(256) or []) > 16  # the plot's colours kept, not a few greys
+    assert first.stat().st_size < 0.6 * (tmp_path / "rgba.png").stat().st_size

@@ -40,6 +40,7 @@ import numpy as np
 import psutil
 from playwright.sync_api import Error as PlaywrightError
 
+from pe_mjx.plots import save_palette_png
 from pe_mjx.viewer.browser import Browser, BrowserError, find_chromium, scene_region, team_pixels
 
 CLI = [sys.executable, "-m", "pe_mjx.cli"]
@@ -302,7 +303,7 @@ def plot(report: dict, path: Path) -> None:
     )
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    save_palette_png(fig, path, dpi=100)
     plt.close(fig)
 
 

@@ -23,6 +23,7 @@ import tyro
 
 from pe_mjx.names import ENCODERS
 from pe_mjx.paper import PAPER
+from pe_mjx.plots import save_palette_png
 from pe_mjx.ppo.curves import CURVES_FILE, read_rows, scalars
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -156,7 +157,7 @@ def draw(runs: Path, figure: Path) -> Path:
     fig.suptitle("20-5-8 co-evolutions to 10M env steps (solid) and 3M (dashed), seed 0")
     fig.tight_layout(rect=(0, 0, 1, 0.94))
     figure.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(figure, dpi=90)
+    save_palette_png(fig, figure, dpi=90)
     plt.close(fig)
     return figure
 

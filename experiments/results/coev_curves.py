@@ -21,6 +21,8 @@ from pathlib import Path
 
 import tyro
 
+from pe_mjx.plots import save_palette_png
+
 ROOT = Path(__file__).resolve().parents[2]
 # tag -> (panel, legend label, colour: blue = the learned pursuers, orange = the learned evaders)
 SERIES = {
@@ -141,7 +143,7 @@ def _save(fig, title: str, path: Path) -> Path:
     plt = _pyplot()
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
-    fig.savefig(path, dpi=100)
+    save_palette_png(fig, path, dpi=100)
     plt.close(fig)
     return path
 
