@@ -45,6 +45,7 @@ SOURCES = (
     "transfer-240-60-120-3m/results.json",
     "arena-240-60-120/results.json",
     "recipe/recipe.json",
+    "leaderboards/*/leaderboard.json",
 )
 # Each report `pe-mjx reproduce` wrote, with the data directory that
 # experiments/results/paper_findings.py read:
@@ -119,18 +120,10 @@ def test_each_paper_table_on_the_page_is_ours_beside_the_papers(table):
 
 
 def test_the_pages_other_tables_are_rows_of_their_reports():
-    """The seed tables quote experiments/results/seed_spread.py's reports, the 10M tables
+    """The seed table quotes experiments/results/seed_spread.py's report, the 10M tables
     experiments/results/budget.py's, the 240-60-120 table experiments/results/large_scale.py's
     summary, each row as written there."""
     page = PAGE.read_text()
-    seeds = _section(page, "### Three seeds at 20-5-8 (3M)")
-    reports = "\n".join(
-        (DATA / "coev-seeds-3m" / method / "seeds.md").read_text()
-        for method in ("mix", "mean", "mlp", "birnn")
-    )
-    quoted = [r for r in _table_rows(seeds) if r.startswith("| E_")]
-    assert len(quoted) == 12
-    assert set(quoted) <= set(_table_rows(reports))
     over = _section(page, "### Table III over three seeds (3M)")
     report = (DATA / "paper-3m-seeds" / "seeds.md").read_text()
     matrix = report.split("\nSuccess, evaders", 1)[1].split("\nPer-evader cost, evaders", 1)[0]
@@ -174,7 +167,8 @@ def _numbers(value, out: set[str]) -> None:
         for v in value:
             _numbers(v, out)
     elif isinstance(value, (int, float)) and not isinstance(value, bool):
-        out.update(f"{value:.{digits}f}" for digits in (1, 2, 3))
+        # unsigned: the page's numbers are read without their sign (a rating of -6.07)
+        out.update(f"{abs(value):.{digits}f}" for digits in (1, 2, 3))
 
 
 def _paper_means() -> set[str]:
