@@ -45,7 +45,6 @@ SOURCES = (
     "transfer-240-60-120-3m/results.json",
     "arena-240-60-120/results.json",
     "recipe/recipe.json",
-    "leaderboards/*/leaderboard.json",
 )
 # Each report `pe-mjx reproduce` wrote, with the data directory that
 # experiments/results/paper_findings.py read:
