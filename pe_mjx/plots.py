@@ -3,6 +3,7 @@ as a Fig. 4-style top-down trajectory plot or a GIF/MP4 animation (matplotlib, i
 
 from __future__ import annotations
 
+import io
 import struct
 from collections import defaultdict
 from pathlib import Path
@@ -37,8 +38,6 @@ def save_palette_png(fig, path: str | Path, dpi: int) -> Path:
     For the figures the repository commits (docs/figures): a line plot looks the same as
     matplotlib's RGBA file at about a third of its size. The same figure gives the same bytes.
     """
-    import io
-
     from PIL import Image
 
     buffer = io.BytesIO()

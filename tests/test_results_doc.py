@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from pe_mjx.eval_reports import code_provenance
 from pe_mjx.paper import PAPER
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -166,8 +167,7 @@ def _numbers(value, out: set[str]) -> None:
         for v in value:
             _numbers(v, out)
     elif isinstance(value, (int, float)) and not isinstance(value, bool):
-        # unsigned: the page's numbers are read without their sign (a rating of -6.07)
-        out.update(f"{abs(value):.{digits}f}" for digits in (1, 2, 3))
+        out.update(f"{value:.{digits}f}" for digits in (1, 2, 3))
 
 
 def _paper_means() -> set[str]:
@@ -192,8 +192,9 @@ def _paper_means() -> set[str]:
 
 
 def _clean(code_version: dict | None) -> bool:
-    """Whether an evaluation recorded that it ran from a commit without uncommitted changes."""
-    return code_version is not None and code_version["git_dirty"] is False
+    """Whether an evaluation recorded that it ran from a commit without uncommitted changes (as
+    the compute table counts it, `pe_mjx.eval_reports.code_provenance`)."""
+    return code_provenance([{"code_version": code_version}])["clean"] == 1
 
 
 def _clean_large_scale() -> dict[str, dict[str, dict]]:
@@ -235,8 +236,8 @@ def test_every_decimal_number_on_the_page_is_in_a_committed_file():
     of the 240-60-120 summary, only the rows played from a clean commit count."""
     allowed = set(NOT_DATA) | _paper_means()
     for path in (path for pattern in SOURCES for path in DATA.glob(pattern)):
-        data = json.loads(path.read_text())
-        _numbers(_clean_large_scale() if path.name == "summary.json" else data, allowed)
+        is_summary = path.name == "summary.json"
+        _numbers(_clean_large_scale() if is_summary else json.loads(path.read_text()), allowed)
     _numbers([list(cells) for table in PAPER.values() for cells in table.values()], allowed)
     page = re.sub(r"```.*?```", "", PAGE.read_text(), flags=re.S)  # commands, not results
     page = re.sub(r"\([^()\s]*\.(?:png|npz|md)\)", "", page)  # link targets
