@@ -320,6 +320,10 @@ class EvaluateArgs:
     """Show a progress bar over each pairing's trials (on a terminal, on stderr)."""
     out: Path = Path("results/latest")
     """Output directory."""
+    keep: Path | None = None
+    """An earlier evaluation's output directory (--out itself, to add policies to it): its
+    pairings of the same two policies, scene, trials, seed and backend are kept rather than
+    played again, once one of them has replayed identically (else every pairing is played)."""
 
 
 def evaluate_defaults(argv: list[str]) -> EvaluateArgs:
@@ -358,8 +362,14 @@ def _named_scene(env: EnvConfig) -> EnvConfig:
 def run_evaluate(args: EvaluateArgs) -> None:
     if args.out.exists() and not args.out.is_dir():
         _fail(f"--out: {args.out} is not a directory")
-    if args.out.exists() and any(args.out.glob("results.*")):
-        _fail(f"--out: {args.out} already holds results; choose another --out")
+    if args.keep is not None and not (args.keep / "results.json").is_file():
+        _fail(f"--keep: {args.keep} holds no results.json of `pe-mjx evaluate`")
+    extending = args.keep is not None and args.keep.resolve() == args.out.resolve()
+    if not extending and args.out.exists() and any(args.out.glob("results.*")):
+        _fail(
+            f"--out: {args.out} already holds results; choose another --out (or add policies "
+            f"to it with --keep {args.out})"
+        )
     _check_writable_dir("--out", args.out)
     from pe_mjx.evaluate import check_policy_specs, run_evaluation
 
@@ -371,6 +381,7 @@ def run_evaluate(args: EvaluateArgs) -> None:
         args.out,
         log=lambda line: print(line, file=sys.stderr, flush=True),  # stdout: the table only
         progress=args.progress,
+        keep=args.keep,
     )
     print(report["paths"]["markdown"].read_text())
     print(f"wrote {args.out} in {report['meta']['seconds']:.1f} s", file=sys.stderr)

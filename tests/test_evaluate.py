@@ -234,6 +234,30 @@ def test_cli_end_to_end_and_bad_inputs(tmp_path):
         assert "Traceback" not in bad.stderr
 
 
+def test_pe_mjx_evaluate_keep_adds_a_policy_and_plays_only_its_pairings(tmp_path, capsys):
+    """`--keep DIR`: an evaluation that adds a policy keeps DIR's pairings of the same policies
+    (after replaying one), into another --out or into DIR itself; a --keep without results is
+    one line naming it, and the earlier results are left as they were."""
+    from pe_mjx.cli import main
+
+    out = tmp_path / "table"
+    argv = ["evaluate", "--preset", "2-1-1", "--trials", "3", "--backend", "kinematic"]
+    argv += ["--record", "0", "--no-progress", "--pursuers", "scripted", "random"]
+    main([*argv, "--evaders", "scripted", "--out", str(out)])
+    before = (out / "results.json").read_text()
+    with pytest.raises(SystemExit):
+        main([*argv, "--evaders", "scripted", "--out", str(out), "--keep", str(tmp_path)])
+    assert f"--keep: {tmp_path} holds no results.json" in capsys.readouterr().err
+    assert (out / "results.json").read_text() == before
+    for target in (tmp_path / "other", out):
+        main([*argv, "--evaders", "scripted", "random", "--out", str(target), "--keep", str(out)])
+        data = json.loads((target / "results.json").read_text())
+        # (scripted, scripted) replayed as the check, (random, scripted) kept, the rest played.
+        assert [p["kept"] for p in data["pairings"]] == [False, True, False, False]
+        assert data["meta"]["kept_from"] == str(out)
+    capsys.readouterr()
+
+
 def test_the_api_and_the_cli_evaluate_a_shipped_policy_bit_for_bit(tmp_path, capsys):
     """One `EvalConfig` through both front ends, `evaluate(...)` and `pe-mjx evaluate`: the same
     results.json (but for wall times), trials.csv and trajectories, byte for byte."""
