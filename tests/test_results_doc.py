@@ -46,6 +46,9 @@ SOURCES = (
     "transfer-240-60-120-3m/results.json",
     "arena-240-60-120/results.json",
     "recipe/recipe.json",
+    "leaderboards/*/leaderboard.json",
+    "flagship-seeds/seeds.json",
+    "flagship-seeds/s*/results.json",
 )
 # Each report `pe-mjx reproduce` wrote, with the data directory that
 # experiments/results/paper_findings.py read:
@@ -120,7 +123,7 @@ def test_each_paper_table_on_the_page_is_ours_beside_the_papers(table):
 
 
 def test_the_pages_other_tables_are_rows_of_their_reports():
-    """The seed table quotes experiments/results/seed_spread.py's report, the 10M tables
+    """The seed tables quote experiments/results/seed_spread.py's reports, the 10M tables
     experiments/results/budget.py's, the 240-60-120 table experiments/results/large_scale.py's
     summary, each row as written there."""
     page = PAGE.read_text()
@@ -134,6 +137,11 @@ def test_the_pages_other_tables_are_rows_of_their_reports():
     report = (DATA / "paper-10m" / "budget.md").read_text()
     quoted = [r for r in _table_rows(budget) if r.startswith("| E_")]
     assert len(quoted) == 5  # the success table; the cost table is in the linked report
+    assert set(quoted) <= set(_table_rows(report))
+    flagship = _section(page, "### The flagship over three seeds, against held-out evaders")
+    report = (DATA / "flagship-seeds" / "seeds.md").read_text()
+    quoted = [r for r in _table_rows(flagship) if r.startswith("| E_")]
+    assert len(quoted) >= 5
     assert set(quoted) <= set(_table_rows(report))
     large = _section(page, "## 240-60-120 (beyond the paper)")
     summary = (DATA / "large-scale" / "summary.md").read_text()
@@ -167,7 +175,8 @@ def _numbers(value, out: set[str]) -> None:
         for v in value:
             _numbers(v, out)
     elif isinstance(value, (int, float)) and not isinstance(value, bool):
-        out.update(f"{value:.{digits}f}" for digits in (1, 2, 3))
+        # unsigned, as the page's numbers are read (a rating below the anchor's is negative)
+        out.update(f"{abs(value):.{digits}f}" for digits in (1, 2, 3))
 
 
 def _paper_means() -> set[str]:
@@ -218,7 +227,11 @@ def test_every_evaluation_the_page_quotes_was_played_from_a_clean_commit():
         assert table["provenance"]["clean"] > 0, name
         assert table["provenance"]["dirty"] == table["provenance"]["not_recorded"] == 0, name
     reports = [p for pattern in SOURCES for p in DATA.glob(pattern) if p.name == "results.json"]
-    assert len(reports) >= 8
+    boards = sorted(DATA.glob("leaderboards/*/leaderboard.json"))
+    assert len(boards) == 3
+    for board in boards:  # every file a leaderboard on the page was fitted to
+        reports += [ROOT / s["path"] for s in json.loads(board.read_text())["sources"]]
+    assert len(reports) >= 30
     for path in reports:
         assert _clean(json.loads(path.read_text())["meta"].get("code_version")), path
     clean = _clean_large_scale()

@@ -61,6 +61,16 @@ TABLES = {
         "arena-240-60-120",
     ),
     "Ablations": ("ablations/*",),
+    "240-60-120 over three seeds": ("flagship-seeds/s[0-9]",),
+    # The files the leaderboards pool beyond those of the tables above (counted in their rows).
+    "Leaderboards": (
+        "coev-seeds-1m/mix-s0",
+        *(f"large-scale/20-5-8/{p}" for p in ("main", "tuned-evader-240", "tuned-evader")),
+        *(f"large-scale/240-60-120/{p}" for p in ("tuned-evader", "tuned-pursuer")),
+        "transfer-240-60-120",
+        "transfer-240-60-120-birnn",
+        "transfer-240-60-120-learned*",
+    ),
 }
 # A policy shipped from a seed-0 co-evolution (`mix-20-5-8-3m`), or the same parameters read
 # through k nearest entities or a 5 m length unit (`mix-20-5-8-3m-k4-5m`).

@@ -167,7 +167,7 @@ def test_pe_mjx_rate_runs_as_a_console_script(tmp_path):
 def test_the_committed_leaderboards_are_those_of_the_committed_results(scene):
     """docs/data/leaderboards/<scene> was written by `pe-mjx rate` from the files it names:
     rated again (point estimates do not depend on the bootstrap), every row is the same, and
-    docs/leaderboards.md quotes its table unchanged."""
+    docs/results.md quotes its table unchanged."""
     board = json.loads((LEADERBOARDS / scene / "leaderboard.json").read_text())
     matches = ratings.read_results([ROOT / s["path"] for s in board["sources"]])
     pursuers, evaders = ratings.rate(matches.pairings, resamples=10)
@@ -178,4 +178,4 @@ def test_the_committed_leaderboards_are_those_of_the_committed_results(scene):
     page = (LEADERBOARDS / scene / "leaderboard.md").read_text()
     table = "\n".join(line for line in page.splitlines() if line.startswith("|"))
     assert page.startswith(f"# Leaderboard of {board['scene']}") and table.count("\n") > 5
-    assert table in (ROOT / "docs/leaderboards.md").read_text()  # the page quotes it as written
+    assert table in (ROOT / "docs/results.md").read_text()  # the page quotes it as written
