@@ -62,16 +62,10 @@ TABLES = {
     ),
     "Ablations": ("ablations/*",),
     "240-60-120 over three seeds": ("flagship-seeds/s[0-9]",),
-    # The files the leaderboards pool beyond those of the tables above (counted in their rows).
-    "Leaderboards": (
-        "coev-seeds-1m/mix-s0",
-        *(f"large-scale/20-5-8/{p}" for p in ("main", "tuned-evader-240", "tuned-evader")),
-        *(f"large-scale/240-60-120/{p}" for p in ("tuned-evader", "tuned-pursuer")),
-        "transfer-240-60-120",
-        "transfer-240-60-120-birnn",
-        "transfer-240-60-120-learned*",
-    ),
 }
+LEADERBOARDS = "Leaderboards"
+"""The compute row of the files the committed leaderboards pool (each `leaderboard.json`'s
+sources) beyond those of the tables above, which count in their own rows."""
 # A policy shipped from a seed-0 co-evolution (`mix-20-5-8-3m`), or the same parameters read
 # through k nearest entities or a 5 m length unit (`mix-20-5-8-3m-k4-5m`).
 SHIPPED = re.compile(r"(?P<run>[a-z]+-\d+-\d+-\d+)-3m(-k\d+)?(-5m)?")
@@ -133,8 +127,14 @@ def run_of(spec: str) -> str | None:
 def compute() -> dict:
     """Per table of the page: the runs that trained its policies and its evaluations' time."""
     tables = {}
-    for table, patterns in TABLES.items():
-        reports = sorted(p for g in patterns for p in DATA.glob(f"{g}/results.json"))
+    reports_of = {
+        t: sorted(p for g in gs for p in DATA.glob(f"{g}/results.json")) for t, gs in TABLES.items()
+    }
+    counted = {p for reports in reports_of.values() for p in reports}
+    boards = sorted(DATA.glob("leaderboards/*/leaderboard.json"))
+    pooled = {ROOT / s["path"] for board in boards for s in read_json(board)["sources"]}
+    reports_of[LEADERBOARDS] = sorted(pooled - counted)
+    for table, reports in reports_of.items():
         results = [read_json(p) for p in reports]
         metas = [r["meta"] for r in results]
         specs = {s for m in metas for s in m["pursuers"] + m["evaders"]} - {"scripted", "random"}
