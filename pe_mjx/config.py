@@ -60,9 +60,10 @@ def _convert(value: Any, kind: Any, where: str) -> Any:
     elif origin is tuple:
         args = typing.get_args(kind)
         if isinstance(value, list | tuple):
-            item = args[0]
-            if (len(args) == 2 and args[1] is Ellipsis) or len(args) == len(value):
-                items = args if len(args) == len(value) else [item] * len(value)
+            variadic = len(args) == 2 and args[1] is Ellipsis  # tuple[X, ...]
+            if variadic or len(args) == len(value):
+                # tuple[X, ...] of two items is not tuple[X, Ellipsis]
+                items = [args[0]] * len(value) if variadic else args
                 return tuple(_convert(v, k, where) for v, k in zip(value, items, strict=True))
     elif _scalar_ok(value, kind):
         return float(value) if kind is float else value

@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any, Literal
 
 from pe_mjx.config import PRESETS, EnvConfig, check_finite, from_dict, get_preset, merge, to_dict
 from pe_mjx.config_files import read_tree
-from pe_mjx.names import BACKENDS, BUILTIN_POLICIES, ENCODERS, TEAMS, other_team
+from pe_mjx.names import BACKENDS, ENCODERS, TEAMS, other_team
 
 Encoder = Literal["mix", "mean", "birnn", "mlp"]
 Backend = Literal["mjx", "kinematic"]
@@ -231,8 +231,8 @@ class TeamTraining:
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PoolConfig:
     """A learned team trains against a pool of opponents (`pe_mjx.ppo.pool`): the co-evolving
-    opponent's current policy, its own past snapshots and fixed builtin policies, each arena's
-    member drawn at every reset with these probabilities. With `team="both"` each team faces a
+    opponent's current policy, its own past snapshots and fixed policies, each arena's member
+    drawn at every reset with these probabilities. With `team="both"` each team faces a
     pool of the other's snapshots with these settings; an arena where both teams drew a
     non-current opponent keeps one of the two (a coin), so that every arena teaches at least one
     team: each team then meets a non-current member with probability q(1 + p)/2, where p is
@@ -246,7 +246,9 @@ class PoolConfig:
     keep: int = 4
     """Keep the last this many snapshots."""
     fixed: tuple[str, ...] = ()
-    """Fixed members, builtin policies only (scripted, random)."""
+    """Fixed members, played by the opponent team: builtin policies (scripted, random), shipped
+    policies or run directories (resolved when the run starts, as `--<team>.policy` is). The
+    metrics name each by its last path part (`member_names`)."""
     p_current: float = 1.0
     """Probability that an arena's opponent is the co-evolving opponent."""
     p_snapshots: float = 0.0
@@ -266,11 +268,14 @@ class PoolConfig:
             "pool.p_current / p_snapshots / p_fixed",
             f"must be >= 0 and sum to 1, got {probs}",
         )
+        names = self.member_names
         _check(
-            all(name in BUILTIN_POLICIES for name in self.fixed)
-            and len(set(self.fixed)) == len(self.fixed),
+            all(isinstance(spec, str) and spec.strip() and spec != "learn" for spec in self.fixed)
+            and all(name not in ("current", "snapshot", "") for name in names)
+            and len(set(names)) == len(names),
             "pool.fixed",
-            f"must name distinct builtin policies {BUILTIN_POLICIES}, got {self.fixed}",
+            "must name distinct policies (builtin, shipped or a run directory; not 'learn', "
+            f"and no two with one last path part), got {self.fixed}",
         )
         _check(
             bool(self.fixed) == (self.p_fixed > 0),
@@ -282,6 +287,12 @@ class PoolConfig:
     @property
     def on(self) -> bool:
         return self.team is not None
+
+    @property
+    def member_names(self) -> tuple[str, ...]:
+        """Each fixed member's name in the metrics (`pool/vs_<name>/...`): its spec's last path
+        part ("mix-20-5-8-10m" for "train/runs/mix-20-5-8-10m")."""
+        return tuple(PurePath(str(spec).rstrip("/")).name for spec in self.fixed)
 
     @property
     def teams(self) -> tuple[str, ...]:

@@ -336,7 +336,7 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
         "--pool.keep": ("0",),
         "--pool.snapshot-every": ("0", "-2"),
         "--pool.p-current": ("nan", "-1"),
-        "--pool.fixed": ("mix-20-5-8",),
+        "--pool.fixed": ("learn",),
     }
     for flag, values in bad_values.items():
         for value in values:
@@ -358,6 +358,10 @@ def _cases(w: Path) -> list[tuple[str, list[str]]]:
         "--evader.policy", "scripted")  # fmt: skip
     add("train-pools-fixed-opponent", "train", *TINY_TRAIN, *out, "--pool.team", "both",
         "--pursuer.policy", "scripted")  # fmt: skip
+    for name, member in (("missing", "no-such-run"), ("damaged", "num_actions_off_by_one")):
+        add(f"train-pool-member-{name}", "train", *TINY_TRAIN, *out, "--pool.team", "pursuer",
+            "--pool.fixed", member if name == "missing" else str(runs / member),
+            "--pool.p-current", "0.5", "--pool.p-fixed", "0.5")  # fmt: skip
     add("train-unknown-flag", "train", *TINY_TRAIN, *out, "--learning-rate", "1e-3")
     add("train-missing-value", "train", *TINY_TRAIN, *out, "--ppo.gamma")
     add("train-view-value", "train", *TINY_TRAIN, *out, "--view=maybe")

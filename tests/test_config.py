@@ -14,8 +14,10 @@ from pe_mjx.config import (
     EnvConfig,
     RewardConfig,
     TeamConfig,
+    from_dict,
     get_preset,
 )
+from pe_mjx.experiment import PoolConfig
 
 
 def test_presets_cover_paper_small_and_large():
@@ -188,6 +190,17 @@ def test_from_dict_rejects_bad_input():
     bad = {**d, "arena": {**d["arena"], "num_obstacles": 99}}
     with pytest.raises(ValueError, match=r"arena\.num_obstacles"):
         EnvConfig.from_dict(bad)
+
+
+def test_from_dict_reads_a_variadic_tuple_of_any_length():
+    """tuple[str, ...] holds any number of items: two were read as (str, Ellipsis) before."""
+    fields = {"fixed": [], "p_current": 1.0, "p_fixed": 0.0}
+    assert from_dict(PoolConfig, fields).fixed == ()
+    for fixed in (["scripted"], ["scripted", "random"], ["a/x", "b/y", "c/z"]):
+        pool = from_dict(PoolConfig, {**fields, "fixed": fixed, "p_current": 0.5, "p_fixed": 0.5})
+        assert pool.fixed == tuple(fixed)
+    with pytest.raises(ValueError, match=r"pool\.fixed"):
+        from_dict(PoolConfig, {**fields, "fixed": ["scripted", 3]}, "pool.")
 
 
 def test_configs_are_frozen():

@@ -37,7 +37,10 @@ the evader pool's stream keeps one of them and gives the other side its current 
 (`settle`), so no arena is lost to both learners. Metrics are named per team
 (`pool/<team>_vs_<kind>/...`); with one team they stay `pool/vs_<kind>/...`.
 
-Not yet: shipped or run-directory policies as fixed members (builtins only).
+Fixed members may be learned (a shipped policy or a run directory, `PoolConfig.fixed`): the
+caller resolves them for the opponent team (`pe_mjx.ppo.run.resolve_pool_members`) and the
+Trainer hands them in; each then plays with its own parameters and observation statistics, on
+every arena like a builtin one (one more forward pass per learned member and step).
 """
 
 from __future__ import annotations
@@ -77,9 +80,9 @@ class Pool:
         self.team = team
         self.opponent = other_team(team)
         self.network = network
-        self.fixed = [fixed[name] for name in config.fixed]
+        self.fixed = [fixed[spec] for spec in config.fixed]
         self.keep = config.keep
-        self.kinds = ("current", "snapshot", *config.fixed)
+        self.kinds = ("current", "snapshot", *config.member_names)
         """Member kinds, as the metrics name them (`pool/vs_<kind>/...`)."""
         self.prefix = f"pool/{team}_vs_" if config.team == "both" else "pool/vs_"
 
@@ -237,7 +240,7 @@ class Pool:
         """(team, name, opponent) pairs the in-training evaluation adds: the newest `snapshot`
         and each fixed member but scripted (which every learned team already meets)."""
         pairs = [(self.team, "snapshot", snapshot)]
-        for name, policy in zip(self.config.fixed, self.fixed, strict=True):
+        for name, policy in zip(self.config.member_names, self.fixed, strict=True):
             if name != "scripted":
                 pairs.append((self.team, name, policy))
         return pairs
@@ -274,10 +277,10 @@ def make_pools(
     config: PoolConfig, networks: dict[str, Any], make_fixed: Callable[[str, str], Policy]
 ) -> dict[str, Pool]:
     """The pools of `config` keyed by the team that faces each (none when it is off): the
-    opponent's network from `networks`, fixed members from `make_fixed(name, opponent)`."""
+    opponent's network from `networks`, fixed members from `make_fixed(spec, opponent)`."""
     pools = {}
     for team in config.teams:
         opponent = other_team(team)
-        fixed = {name: make_fixed(name, opponent) for name in config.fixed}
+        fixed = {spec: make_fixed(spec, opponent) for spec in config.fixed}
         pools[team] = Pool(config, team, networks[opponent], fixed)
     return pools

@@ -23,7 +23,7 @@ from rich.progress import Progress
 from pe_mjx import interrupts
 from pe_mjx.config import EnvConfig
 from pe_mjx.experiment import ExperimentConfig
-from pe_mjx.names import TEAMS
+from pe_mjx.names import BUILTIN_POLICIES, TEAMS, other_team
 from pe_mjx.policy import store
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
@@ -50,6 +50,7 @@ __all__ = [
     "initial_variables",
     "learning_rates",
     "resolve_opponents",
+    "resolve_pool_members",
     "resume_config",
     "saved_config",
     "snapshot",
@@ -75,6 +76,24 @@ def resolve_opponents(config: ExperimentConfig) -> dict[str, Policy]:
         for team in TEAMS
         if config.team(team).policy != "learn"
     }
+
+
+def resolve_pool_members(config: ExperimentConfig) -> dict[tuple[str, str], Policy]:
+    """The learned fixed members of the config's pools (shipped policies or run directories in
+    `pool.fixed`), each resolved for the team that plays it, keyed (team, spec); builtin ones are
+    left to the Trainer. A member that cannot play that team here raises a `CheckpointError`
+    naming `--pool.fixed`."""
+    members = {}
+    for team in config.pool.teams:
+        opponent = other_team(team)
+        for spec in config.pool.fixed:
+            if spec in BUILTIN_POLICIES:
+                continue
+            try:
+                members[opponent, spec] = resolve_policy(spec, opponent, config.env)
+            except store.CheckpointError as err:
+                raise store.CheckpointError(f"--pool.fixed: {err}") from None
+    return members
 
 
 def initial_variables(trainer: Trainer) -> dict[str, Any]:
@@ -198,7 +217,11 @@ def train(
             f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or "
             f"choose another --out"
         )
-    trainer = Trainer(config, opponents=resolve_opponents(config))
+    trainer = Trainer(
+        config,
+        opponents=resolve_opponents(config),
+        pool_members=resolve_pool_members(config),
+    )
     if resume:
         if not run_dir.is_dir():
             raise store.CheckpointError(f"no run at {run_dir}: the directory does not exist")

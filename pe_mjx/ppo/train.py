@@ -102,7 +102,9 @@ class Trainer:
 
     `opponents` holds a ready policy for each team that does not learn (built by the caller from
     the config's policy spec, e.g. with `pe_mjx.ppo.run.resolve_opponents`); "scripted" and
-    "random" are built here when not given.
+    "random" are built here when not given. `pool_members` the same for the pools' fixed members
+    (`config.pool.fixed`), keyed by (the team that plays it, its spec), e.g. from
+    `pe_mjx.ppo.run.resolve_pool_members`.
     """
 
     def __init__(
@@ -110,6 +112,7 @@ class Trainer:
         config: ExperimentConfig,
         opponents: dict[str, Policy] | None = None,
         mesh: jax.sharding.Mesh | None = None,
+        pool_members: dict[tuple[str, str], Policy] | None = None,
     ):
         self.config = config
         self.env_config = config.env
@@ -133,11 +136,19 @@ class Trainer:
                 )
             self.fixed[team] = make_policy(spec, self.env_config, team)
         self.scripted = {t: make_policy("scripted", self.env_config, t) for t in TEAMS}
-        self.pools = make_pools(
-            config.pool,
-            self.networks,
-            lambda name, opponent: make_policy(name, self.env_config, opponent),
-        )
+        members = dict(pool_members or {})
+
+        def pool_member(spec: str, team: str) -> Policy:
+            if (team, spec) in members:
+                return members[team, spec]
+            if spec not in FIXED_POLICIES:
+                raise ValueError(
+                    f"the {team} pool member {spec!r} must be handed in as a pool member "
+                    f"(Trainer builds only {FIXED_POLICIES})"
+                )
+            return make_policy(spec, self.env_config, team)
+
+        self.pools = make_pools(config.pool, self.networks, pool_member)
         """The opponent pools keyed by the team that faces each (`pe_mjx.ppo.pool`): the pool
         that stands in for team T's policy is `pools[other_team(T)]`."""
         self.mesh = mesh or jax.sharding.Mesh(np.array(jax.devices()), ("data",))

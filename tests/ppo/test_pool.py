@@ -13,9 +13,10 @@ import pytest
 from pe_mjx.experiment import ExperimentConfig, PoolConfig
 from pe_mjx.networks import sample_actions
 from pe_mjx.policy.inference import normalize_obs
+from pe_mjx.policy.store import CheckpointError
 from pe_mjx.ppo import checkpoint
 from pe_mjx.ppo.pool import Pool, PoolState, make_pools, settle
-from pe_mjx.ppo.run import warm_start
+from pe_mjx.ppo.run import resolve_pool_members, warm_start
 from pe_mjx.ppo.run_files import resume_config
 from pe_mjx.ppo.train import Trainer
 from tests.tiny_config import tiny
@@ -292,7 +293,12 @@ def test_resuming_cannot_switch_the_pool_on_or_off(tmp_path):
         ({"pool.team": "pursuer", "pool.p_current": -0.5, "pool.p_snapshots": 1.5}, ">= 0"),
         ({"pool.keep": 0}, "pool.keep must be >= 1"),
         ({"pool.snapshot_every": 0}, "pool.snapshot_every must be >= 1"),
-        ({"pool.fixed": ["mix-20-5-8"], "pool.p_current": 0.5, "pool.p_fixed": 0.5}, "builtin"),
+        ({"pool.fixed": ["learn"], "pool.p_current": 0.5, "pool.p_fixed": 0.5}, "pool.fixed"),
+        (
+            {"pool.fixed": ["runs/a/mix", "other/mix"], "pool.p_current": 0.5, "pool.p_fixed": 0.5},
+            "one last path part",
+        ),
+        ({"pool.fixed": ["snapshot"], "pool.p_current": 0.5, "pool.p_fixed": 0.5}, "pool.fixed"),
         ({"pool.fixed": ["random"]}, "pool.p_fixed must be > 0"),
         ({"pool.team": "pursuer", "evader.policy": "scripted"}, "needs both teams learning"),
         ({"pool.team": "referee"}, "pool.team"),
@@ -301,4 +307,50 @@ def test_resuming_cannot_switch_the_pool_on_or_off(tmp_path):
 def test_bad_pool_settings_are_one_line(changes, needle):
     with pytest.raises(ValueError, match=needle) as err:
         tiny(**changes)
+    assert "\n" not in str(err.value)
+
+
+SHIPPED_MEMBER = {
+    "pool.team": "pursuer",
+    "pool.fixed": ["mean-20-5-8-3m"],
+    "pool.p_current": 0.5,
+    "pool.p_fixed": 0.5,
+}
+
+
+def test_a_shipped_fixed_member_plays_its_own_actions_in_its_arenas():
+    """A learned fixed member (a shipped policy, resolved for the opponent team at this scene)
+    gives the arenas that drew it its own actions, is named by its policy in the metrics and
+    meets the pool team in the in-training evaluation."""
+    config = tiny(**MEAN, **SHIPPED_MEMBER, eval_envs=8)
+    members = resolve_pool_members(config)
+    assert list(members) == [("evader", "mean-20-5-8-3m")]
+    member = members["evader", "mean-20-5-8-3m"]
+    assert member.learned and member.team == "evader"
+    with pytest.raises(ValueError, match="must be handed in as a pool member"):
+        Trainer(config)  # a learned member is resolved by the caller, never guessed
+    trainer = Trainer(config, pool_members=members)
+    assert trainer.pools["pursuer"].kinds == ("current", "snapshot", "mean-20-5-8-3m")
+    state = trainer.init()
+    before = state.pool["pursuer"]
+    pool = {"pursuer": before.replace(member=jnp.full_like(before.member, 1 + config.pool.keep))}
+    raw = state.env_state.obs
+    obs = {t: trainer._inputs(t, raw[t]) for t in ("pursuer", "evader")}
+    rng = jax.random.key(3)
+    actions, _ = jax.jit(trainer._act)(state.teams, obs, rng, pool, raw)
+    current, _ = jax.jit(trainer._act)(state.teams, obs, rng)
+    evader_key = jax.random.split(rng, 2)[1]  # `_act` splits one key per team, in TEAMS order
+    keys = jax.random.split(jax.random.fold_in(evader_key, 1), before.member.shape[0])
+    assert np.array_equal(actions["evader"], jax.vmap(member)(raw["evader"], keys))
+    assert not np.array_equal(actions["evader"], current["evader"])
+    assert np.array_equal(actions["pursuer"], current["pursuer"])
+    found = jax.jit(trainer.evaluate)(state, jax.random.key(0))
+    assert np.isfinite(float(found["eval/pursuer_vs_mean-20-5-8-3m/success_rate"]))
+
+
+@pytest.mark.parametrize("spec", ["no-such-policy", "tests"])
+def test_a_fixed_member_that_cannot_play_is_one_line_naming_the_flag(spec):
+    config = tiny(**MEAN, **{**SHIPPED_MEMBER, "pool.fixed": [spec]})
+    with pytest.raises(CheckpointError, match=r"^--pool\.fixed: ") as err:
+        resolve_pool_members(config)
     assert "\n" not in str(err.value)
