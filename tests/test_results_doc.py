@@ -40,6 +40,7 @@ SOURCES = (
     "paper-3m/**/*.json",
     "paper-3m-scales/**/*.json",
     "paper-10m/**/*.json",
+    "best-responses-20-5-8/results.json",
     "coev-seeds-3m/*/seeds.json",
     "paper-3m-seeds/seeds.json",
     "large-scale/summary.json",
@@ -124,8 +125,8 @@ def test_each_paper_table_on_the_page_is_ours_beside_the_papers(table):
 
 def test_the_pages_other_tables_are_rows_of_their_reports():
     """The seed tables quote experiments/results/seed_spread.py's reports, the 10M tables
-    experiments/results/budget.py's, the 240-60-120 table experiments/results/large_scale.py's
-    summary, each row as written there."""
+    experiments/results/budget.py's, the best responses their evaluation's report, the
+    240-60-120 table experiments/results/large_scale.py's summary, each row as written there."""
     page = PAGE.read_text()
     over = _section(page, "### Table III over three seeds (3M)")
     report = (DATA / "paper-3m-seeds" / "seeds.md").read_text()
@@ -137,6 +138,11 @@ def test_the_pages_other_tables_are_rows_of_their_reports():
     report = (DATA / "paper-10m" / "budget.md").read_text()
     quoted = [r for r in _table_rows(budget) if r.startswith("| E_")]
     assert len(quoted) == 5  # the success table; the cost table is in the linked report
+    assert set(quoted) <= set(_table_rows(report))
+    responses = _section(page, "### Best responses at 20-5-8 (10M, MJX)")
+    report = (DATA / "best-responses-20-5-8" / "results.md").read_text()
+    quoted = [r for r in _table_rows(responses) if not r.startswith(("|---", "| Evader"))]
+    assert len(quoted) >= 4  # each best response against its policy, beside the headline pair
     assert set(quoted) <= set(_table_rows(report))
     flagship = _section(page, "### The flagship over three seeds, against held-out evaders")
     report = (DATA / "flagship-seeds" / "seeds.md").read_text()

@@ -46,6 +46,7 @@ TABLES = {
     "II": ("paper-3m-scales/table-II",),
     "III": ("paper-3m/table-III",),
     "III at 10M": ("paper-10m/table-III",),
+    "Best responses at 20-5-8": ("best-responses-20-5-8",),
     "IV": ("paper-3m-scales/table-IV",),
     "V": ("paper-3m-scales/table-V",),
     "VI": ("paper-3m-scales/table-VI",),
