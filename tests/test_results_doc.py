@@ -170,6 +170,18 @@ def test_the_recipe_tables_are_rows_of_their_reports():
     assert not quoted, quoted
 
 
+def test_every_table_on_the_page_has_its_header_row_and_separator():
+    """A table whose separator row is lost renders as text (the compute table's once was, when
+    its rows were copied in again); each table of the page starts with a header row and
+    `|---|`, one cell per column."""
+    lines = re.sub(r"```.*?```", "", PAGE.read_text(), flags=re.S).splitlines()
+    starts = [i for i, line in enumerate(lines) if line.startswith("|") and not lines[i - 1]]
+    assert len(starts) >= 15
+    for i in starts:
+        columns = lines[i].count(" | ") + 1
+        assert lines[i + 1] == "|---" * columns + "|", (i + 1, lines[i][:60])
+
+
 def _numbers(value, out: set[str]) -> None:
     """Every float and int under `value`, as the page may print it, but the per-trial lists of
     an evaluation (so many numbers would let almost any value pass)."""
