@@ -41,6 +41,8 @@ SOURCES = (
     "paper-3m-scales/**/*.json",
     "paper-10m/**/*.json",
     "best-responses-20-5-8/results.json",
+    "pool-3m/results.json",
+    "pool-3m/rating/leaderboard.json",
     "coev-seeds-3m/*/seeds.json",
     "paper-3m-seeds/seeds.json",
     "large-scale/summary.json",
@@ -144,6 +146,10 @@ def test_the_pages_other_tables_are_rows_of_their_reports():
     quoted = [r for r in _table_rows(responses) if not r.startswith(("|---", "| Evader"))]
     assert len(quoted) >= 4  # each best response against its policy, beside the headline pair
     assert set(quoted) <= set(_table_rows(report))
+    pools = _section(page, "### Opponent pools at 20-5-8 (kinematic)")
+    board = (DATA / "pool-3m" / "rating" / "leaderboard.md").read_text()
+    quoted = [r for r in _table_rows(pools) if r.startswith("| ")]
+    assert len(quoted) >= 6 and set(quoted) <= set(_table_rows(board))
     flagship = _section(page, "### The flagship over three seeds, against held-out evaders")
     report = (DATA / "flagship-seeds" / "seeds.md").read_text()
     quoted = [r for r in _table_rows(flagship) if r.startswith("| E_")]
