@@ -30,7 +30,7 @@ from typing import Any, Literal
 
 from pe_mjx.config import PRESETS, EnvConfig, check_finite, from_dict, get_preset, merge, to_dict
 from pe_mjx.config_files import read_tree
-from pe_mjx.names import BACKENDS, ENCODERS, TEAMS, other_team
+from pe_mjx.names import BACKENDS, BUILTIN_POLICIES, ENCODERS, TEAMS, other_team
 
 Encoder = Literal["mix", "mean", "birnn", "mlp"]
 Backend = Literal["mjx", "kinematic"]
@@ -300,6 +300,17 @@ class PoolConfig:
         if self.team is None:
             return ()
         return TEAMS if self.team == "both" else (self.team,)
+
+    @property
+    def learned_members(self) -> tuple[tuple[str, str], ...]:
+        """(the team that plays it, spec) of each fixed member that is not builtin (a shipped
+        policy or a run directory), for each pool: what the caller resolves for the Trainer."""
+        return tuple(
+            (other_team(team), spec)
+            for team in self.teams
+            for spec in self.fixed
+            if spec not in BUILTIN_POLICIES
+        )
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

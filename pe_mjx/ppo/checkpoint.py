@@ -489,7 +489,7 @@ def _shape_trainer(config: Any) -> Trainer:
     """A trainer with the train state's shapes of `config`: a team or a pool member played from
     another run is stood in for by the scripted policy (opponents are not part of the train
     state)."""
-    from pe_mjx.names import BUILTIN_POLICIES, other_team
+    from pe_mjx.names import BUILTIN_POLICIES
     from pe_mjx.policy.scripted import make_policy
 
     opponents = {
@@ -498,9 +498,7 @@ def _shape_trainer(config: Any) -> Trainer:
         if config.team(team).policy not in ("learn", *BUILTIN_POLICIES)
     }
     members = {
-        (other_team(team), spec): make_policy("scripted", config.env, other_team(team))
-        for team in config.pool.teams
-        for spec in config.pool.fixed
-        if spec not in BUILTIN_POLICIES
+        (team, spec): make_policy("scripted", config.env, team)
+        for team, spec in config.pool.learned_members
     }
     return Trainer(config, opponents=opponents, pool_members=members)

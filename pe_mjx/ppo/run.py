@@ -23,7 +23,7 @@ from rich.progress import Progress
 from pe_mjx import interrupts
 from pe_mjx.config import EnvConfig
 from pe_mjx.experiment import ExperimentConfig
-from pe_mjx.names import BUILTIN_POLICIES, TEAMS, other_team
+from pe_mjx.names import TEAMS
 from pe_mjx.policy import store
 from pe_mjx.policy.core import Policy
 from pe_mjx.policy.resolve import resolve_policy
@@ -84,15 +84,11 @@ def resolve_pool_members(config: ExperimentConfig) -> dict[tuple[str, str], Poli
     left to the Trainer. A member that cannot play that team here raises a `CheckpointError`
     naming `--pool.fixed`."""
     members = {}
-    for team in config.pool.teams:
-        opponent = other_team(team)
-        for spec in config.pool.fixed:
-            if spec in BUILTIN_POLICIES:
-                continue
-            try:
-                members[opponent, spec] = resolve_policy(spec, opponent, config.env)
-            except store.CheckpointError as err:
-                raise store.CheckpointError(f"--pool.fixed: {err}") from None
+    for team, spec in config.pool.learned_members:
+        try:
+            members[team, spec] = resolve_policy(spec, team, config.env)
+        except store.CheckpointError as err:
+            raise store.CheckpointError(f"--pool.fixed: {err}") from None
     return members
 
 
