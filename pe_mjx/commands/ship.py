@@ -14,7 +14,9 @@ class ShipArgs:
     """Ship one checkpoint of a `pe-mjx train` run as a packaged policy (pe_mjx/assets/policies;
     with --dest, DEST/NAME instead): its config and policy parameters only, so it plays
     (`pe-mjx view/evaluate --pursuers NAME`) but cannot be resumed. --nearest-k and
-    --length-unit ship the same parameters reading their neighbours differently (no training)."""
+    --length-unit ship the same parameters reading their neighbours differently (no training);
+    such a copy of a packed policy, into the directory that holds it, shares its parameters file
+    (a few kB; it plays while that file is unchanged)."""
 
     run: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
     """The run directory."""

@@ -14,7 +14,10 @@ k nearest entities of each type, `NetworkConfig.nearest_k`) and `length_unit` re
 distances in units of that many metres in any arena (`NetworkConfig.length_unit`) instead of in
 arena radii. The encoders' parameters do not depend on either, so this changes what the network
 reads, not what it learned: no training. The copy records both and `derived_from` (the run, its
-step and its former network configs).
+step and its former network configs). Such a copy of a packed policy, shipped beside it (into the
+same directory), shares its parameters file rather than holding the parameters again
+(`pe_mjx.policy.packed`, version 2): a few kB instead of a few hundred, and it plays only while
+that policy stays as it was (it fails with one line naming both otherwise).
 
 Every failure is a `ValueError` naming the flag or the path, before anything is written.
 """
@@ -63,8 +66,14 @@ def ship_policy(
         team: store.restore_policy_params(run, team, step=step).variables
         for team in meta["network_configs"]
     }
-    config = _read_config(resolve_run(run) / "config.json")
+    source = resolve_run(run)
+    config = _read_config(source / "config.json")
     packed_meta = {k: v for k, v in meta.items()}
+    shared = None
+    if changes and packed.is_packed(source):
+        holder = packed.owner(source)
+        if holder.resolve().parent == target.parent.resolve() and holder.name != name:
+            shared = holder
     if changes:
         before = copy.deepcopy(meta["network_configs"])
         _set_network(packed_meta, changes)
@@ -76,7 +85,10 @@ def ship_policy(
     stage = outputs.temp_path(target, keep_suffix=False)
     stage.mkdir()
     try:
-        packed.write(stage, packed_meta, policies)
+        if shared is None:
+            packed.write(stage, packed_meta, policies)
+        else:
+            packed.write(stage, packed_meta, parameters_of=shared)
         (stage / "config.json").write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
         if target.exists():  # --replace
             shutil.rmtree(target)
@@ -140,18 +152,3 @@ def _set_network(tree: dict, changes: dict) -> dict:
         if "network" in experiment.get(team, {}):
             experiment[team]["network"].update(changes)
     return tree
-
-
-def with_network(run_copy: Path, changes: dict[str, Any], source: str) -> None:
-    """Rewrites a packed policy (`ship_policy`'s output) with `changes` (`nearest_k`,
-    `length_unit`) in both teams' network configs; records where it came from. Parameters are
-    untouched."""
-    check_changes(changes)
-    meta, policies = packed.read(run_copy)
-    before = copy.deepcopy(meta["network_configs"])
-    packed.write(run_copy, _set_network(meta, changes), policies)
-    config_file = run_copy / "config.json"
-    config = _set_network(json.loads(config_file.read_text()), changes)
-    config["derived_from"] = {"run": source, "network_configs": before, **changes}
-    config_file.write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
-    store.read_meta(run_copy)  # still valid

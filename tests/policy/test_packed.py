@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import jax
 import numpy as np
 import pytest
@@ -68,3 +70,58 @@ def test_a_file_over_the_cap_is_refused_before_it_is_read(packed_copy, tmp_path,
     monkeypatch.setattr(packed, "MAX_BYTES", 1000)
     with pytest.raises(PackedPolicyError, match="larger than"):
         packed.read(packed_copy)
+
+
+def _shared_file(tmp_path, packed_copy, parameters_of):
+    """A version 2 file beside a copy of `packed_copy`, naming `parameters_of` as its owner."""
+    from flax import serialization
+
+    owner = tmp_path / "owner"
+    owner.mkdir()
+    (owner / PACKED_FILE).write_bytes((packed_copy / PACKED_FILE).read_bytes())
+    dest = tmp_path / "shared"
+    dest.mkdir()
+    meta = json.dumps(packed.read(packed_copy)[0])
+    state = {"format": "pe-mjx-policy", "version": 2, "meta": meta, "parameters_of": parameters_of}
+    (dest / PACKED_FILE).write_bytes(serialization.msgpack_serialize(state))
+    return owner, dest
+
+
+@pytest.mark.parametrize(
+    "parameters_of",
+    [None, "owner", {"policy": "../owner", "sha256": "0"}, {"policy": "/etc", "sha256": "0"}],
+)
+def test_a_shared_file_names_a_sibling_or_is_refused(packed_copy, tmp_path, parameters_of):
+    """It can only name a neighbour (no separators, no `..`), with a digest."""
+    _, dest = _shared_file(tmp_path, packed_copy, parameters_of)
+    with pytest.raises(CheckpointError, match="shares parameters but does not say whose"):
+        read_meta(dest)
+
+
+def test_a_shared_file_reads_its_owners_arrays_only_while_they_hash_the_same(packed_copy, tmp_path):
+    owner, dest = _shared_file(tmp_path, packed_copy, None)
+    packed.write(dest, packed.read(packed_copy)[0], parameters_of=owner)
+    here, there = restore_policy_params(dest, "evader"), restore_policy_params(owner, "evader")
+    pairs = zip(jax.tree.leaves(here.variables), jax.tree.leaves(there.variables), strict=True)
+    assert all(np.array_equal(a, b) for a, b in pairs)
+    with pytest.raises(PackedPolicyError, match="does not hold its own parameters"):
+        packed.write(tmp_path / "third", {"step": 0}, parameters_of=dest)  # no chains
+    with pytest.raises(ValueError, match="is not a packed policy beside"):
+        packed.write(tmp_path / "x" / "far", {"step": 0}, parameters_of=owner)
+    data = bytearray((owner / PACKED_FILE).read_bytes())
+    data[-1] ^= 1  # one bit of one parameter
+    (owner / PACKED_FILE).write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match="changed since it was written"):
+        restore_policy_params(dest, "evader")
+
+
+def test_a_newer_format_version_names_the_versions_read(packed_copy, tmp_path):
+    from flax import serialization
+
+    other = _damaged(
+        packed_copy,
+        tmp_path,
+        serialization.msgpack_serialize({"format": "pe-mjx-policy", "version": 3, "meta": "{}"}),
+    )
+    with pytest.raises(CheckpointError, match="version 3; this pe-mjx reads versions 1 and 2"):
+        read_meta(other)

@@ -5,6 +5,7 @@ shipped policies made that way."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import jax
@@ -20,6 +21,7 @@ from pe_mjx.policy.store import read_meta
 ROOT = Path(__file__).resolve().parents[2]
 FULL = ROOT / "assets" / "policies" / "mix-20-5-8-3m"
 LOCAL = "mix-20-5-8-3m-k4"
+PACKED = "policy.msgpack"
 
 
 @pytest.fixture(scope="module")
@@ -101,6 +103,10 @@ def test_a_length_unit_of_the_training_radius_plays_as_before_there_and_in_metre
 
 
 def test_the_shipped_local_policy_is_the_3m_mix_with_k4():
+    """It shares the 3M MIX's parameters file (a few kB in the package, not a second copy)."""
+    from pe_mjx.policy import packed
+
+    assert packed.owner(FULL.parent / LOCAL).resolve() == FULL.resolve()
     meta, source = read_meta(LOCAL), read_meta(FULL)
     assert {c["nearest_k"] for c in meta["network_configs"].values()} == {4}
     assert meta["env_steps"] == source["env_steps"] == 3_000_320
@@ -108,6 +114,38 @@ def test_the_shipped_local_policy_is_the_3m_mix_with_k4():
         a, b = resolve_policy(LOCAL, team), resolve_policy(FULL, team)
         for x, y in zip(jax.tree.leaves(a.variables), jax.tree.leaves(b.variables), strict=True):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_a_copy_shipped_beside_its_packed_source_shares_its_parameters(tmp_path):
+    """--nearest-k into the source's own directory writes a few kB that point at the source's
+    file: the same arrays and fingerprint as a whole copy elsewhere; shipped again from that
+    copy it points at the owner (no chains); once the owner changes it is one clear error."""
+    from pe_mjx.policy import packed
+    from pe_mjx.policy.store import CheckpointError
+
+    home = tmp_path / "runs"
+    home.mkdir()
+    source = home / "mix"
+    shutil.copytree(FULL, source)
+    near, _ = ship_policy(source, "mix-k4", dest=home, nearest_k=4)
+    whole, _ = ship_policy(source, "mix-k4", dest=tmp_path / "elsewhere", nearest_k=4)
+    assert (near / PACKED).stat().st_size < 10_000 < (whole / PACKED).stat().st_size
+    assert packed.owner(near) == source and packed.owner(whole) == whole
+    assert read_meta(near) == read_meta(whole)
+    for team in ("pursuer", "evader"):
+        a, b = resolve_policy(near, team), resolve_policy(whole, team)
+        assert a.network_config.nearest_k == 4 and a.fingerprint == b.fingerprint
+    again, _ = ship_policy(near, "mix-m", dest=home, length_unit=5.0)
+    assert packed.owner(again) == source
+    assert resolve_policy(again, "evader").network_config.length_unit == 5.0
+    itself, _ = ship_policy(source, "mix", dest=home, nearest_k=2, replace=True)
+    assert packed.owner(itself) == source  # replacing its own source: a whole copy
+    with pytest.raises(CheckpointError, match="changed since it was written") as err:
+        read_meta(near)
+    assert "\n" not in str(err.value) and str(source) in str(err.value)
+    shutil.rmtree(source)
+    with pytest.raises(CheckpointError, match=f"shares the parameters of {source}, which cannot"):
+        resolve_policy(again, "pursuer")
 
 
 def test_pe_mjx_ship_copies_the_policies_only_and_refuses_to_replace(tmp_path, capsys):
