@@ -4,6 +4,7 @@ finished run's train state. Reads `git ls-files` of this checkout (tracked and s
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 from pathlib import Path
@@ -61,6 +62,10 @@ def test_no_tensorboard_events_and_no_train_state_of_a_finished_run():
     for run in {Path(*Path(p).parts[:3]) for p in files if Path(p).parts[1:2] == ("runs",)}:
         if run.name != "README.md":
             assert (ROOT / run / "config.json").is_file(), run
+            derived = json.loads((ROOT / run / "config.json").read_text()).get("derived_from")
+            if derived is not None:  # `pe-mjx ship --nearest-k` of a run here: its curves
+                run = Path(derived["run"].rsplit(" step ", 1)[0])
+                assert run.parent == Path("train/runs"), derived
             assert (ROOT / run / "curves.csv.xz").is_file(), run
 
 

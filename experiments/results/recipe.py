@@ -63,6 +63,7 @@ TABLES = {
     ),
     "Ablations": ("ablations/*",),
     "240-60-120 over three seeds": ("flagship-seeds/s[0-9]",),
+    "Opponent pools at 20-5-8": ("pool-3m",),
 }
 LEADERBOARDS = "Leaderboards"
 """The compute row of the files the committed leaderboards pool (each `leaderboard.json`'s
@@ -114,6 +115,9 @@ def run_of(spec: str) -> str | None:
     name = Path(spec).name
     if (RUNS / name / CURVES_FILE).is_file():
         return name
+    derived = RUNS / name / "config.json"  # `pe-mjx ship --nearest-k` of a run: that run's
+    if derived.is_file() and "derived_from" in read_json(derived):
+        return run_of(read_json(derived)["derived_from"]["run"].rsplit(" step ", 1)[0])
     if Path(spec).parent.name == "10m" and (RUNS / f"{name}-10m" / CURVES_FILE).is_file():
         return f"{name}-10m"  # trained under runs/10m/<run>, kept as train/runs/<run>-10m
     match = SHIPPED.fullmatch(name)
