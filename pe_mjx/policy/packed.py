@@ -40,6 +40,8 @@ import jax
 import numpy as np
 from flax import serialization
 
+from pe_mjx import outputs
+
 PACKED_FILE = "policy.msgpack"
 FORMAT = "pe-mjx-policy"
 VERSION = 1
@@ -162,14 +164,11 @@ def _digest(data: bytes) -> str:
 
 
 def _read_capped(path: Path) -> bytes:
+    """The file's bytes, at most `MAX_BYTES` (a FIFO or a device is refused, not waited on)."""
     try:
-        with open(path, "rb") as f:
-            data = f.read(MAX_BYTES + 1)
-    except OSError as err:
-        raise PackedPolicyError(f"{path} cannot be read: {err.strerror or err}") from None
-    if len(data) > MAX_BYTES:
-        raise PackedPolicyError(f"{path} is larger than {MAX_BYTES >> 20} MB")
-    return data
+        return outputs.read_bytes(path, MAX_BYTES)
+    except outputs.OutputError as err:
+        raise PackedPolicyError(str(err)) from None
 
 
 def _parse(data: bytes, path: Path, versions: tuple[int, ...]) -> dict[str, Any]:

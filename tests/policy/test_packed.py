@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import jax
 import numpy as np
@@ -125,3 +126,21 @@ def test_a_newer_format_version_names_the_versions_read(packed_copy, tmp_path):
     )
     with pytest.raises(CheckpointError, match="version 3; this pe-mjx reads versions 1 and 2"):
         read_meta(other)
+
+
+@pytest.mark.timeout(60)  # before the capped reader, open() waited for a writer
+def test_an_owner_that_is_a_fifo_is_refused_at_once(packed_copy, tmp_path):
+    """A shared file names its owner by a name only; what sits there is read with the capped
+    reader, so a FIFO with no writer reads empty (its bytes are not the recorded ones): one
+    error, not a wait."""
+    owner, dest = _shared_file(tmp_path, packed_copy, None)
+    packed.write(dest, packed.read(packed_copy)[0], parameters_of=owner)
+    (owner / PACKED_FILE).unlink()
+    os.mkfifo(owner / PACKED_FILE)
+    with pytest.raises(CheckpointError, match="changed since it was written"):
+        read_meta(dest)
+    fifo = tmp_path / "fifo"
+    fifo.mkdir()
+    os.mkfifo(fifo / PACKED_FILE)
+    with pytest.raises(PackedPolicyError, match="is not a packed policy"):
+        packed.read(fifo)
