@@ -18,6 +18,11 @@ ENCODERS = ("mix", "mean", "birnn", "mlp")
 BUILTIN_POLICIES = ("scripted", "random")
 """Policy specs that need no checkpoint (`pe_mjx.policy.scripted.POLICIES`)."""
 
+POLICY_NAME = r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}"
+"""The pattern (for `re.fullmatch`) of a shipped policy's name and of the sibling a packed
+policy shares parameters with: letters, digits, `.`, `_` and `-`, no separators
+(`pe_mjx.policy.ship`, `pe_mjx.policy.packed`)."""
+
 PARK_DISTANCE = 10.0
 """Absent agents and obstacles wait this many arena radii from the centre, one metre apart: far
 beyond every distance a rule looks at (collisions, rewards, action masks), and masked out of

@@ -9,6 +9,8 @@ import re
 import subprocess
 from pathlib import Path
 
+from pe_mjx.policy.ship import derived_source
+
 ROOT = Path(__file__).resolve().parents[1]
 MAX_TREE_BYTES = 25 * 10**6
 MAX_FILES = 800
@@ -62,10 +64,10 @@ def test_no_tensorboard_events_and_no_train_state_of_a_finished_run():
     for run in {Path(*Path(p).parts[:3]) for p in files if Path(p).parts[1:2] == ("runs",)}:
         if run.name != "README.md":
             assert (ROOT / run / "config.json").is_file(), run
-            derived = json.loads((ROOT / run / "config.json").read_text()).get("derived_from")
-            if derived is not None:  # `pe-mjx ship --nearest-k` of a run here: its curves
-                run = Path(derived["run"].rsplit(" step ", 1)[0])
-                assert run.parent == Path("train/runs"), derived
+            source = derived_source(json.loads((ROOT / run / "config.json").read_text()))
+            if source is not None:  # `pe-mjx ship --nearest-k` of a run here: its curves
+                run = Path(source)
+                assert run.parent == Path("train/runs"), source
             assert (ROOT / run / "curves.csv.xz").is_file(), run
 
 

@@ -32,6 +32,7 @@ from pe_mjx.experiment import ExperimentConfig, default_config
 from pe_mjx.names import ENCODERS
 from pe_mjx.paper import PAPER as PAPER_TABLES
 from pe_mjx.paper import SETTINGS, hyperparameters, learning_rate, says, step_size
+from pe_mjx.policy.ship import derived_source
 from pe_mjx.ppo import curves
 from pe_mjx.ppo.curves import CURVES_FILE, PAUSE_S, read_rows
 
@@ -115,9 +116,10 @@ def run_of(spec: str) -> str | None:
     name = Path(spec).name
     if (RUNS / name / CURVES_FILE).is_file():
         return name
-    derived = RUNS / name / "config.json"  # `pe-mjx ship --nearest-k` of a run: that run's
-    if derived.is_file() and "derived_from" in read_json(derived):
-        return run_of(read_json(derived)["derived_from"]["run"].rsplit(" step ", 1)[0])
+    shipped = RUNS / name / "config.json"  # `pe-mjx ship --nearest-k` of a run: that run's
+    source = derived_source(read_json(shipped)) if shipped.is_file() else None
+    if source is not None:
+        return run_of(source)
     if Path(spec).parent.name == "10m" and (RUNS / f"{name}-10m" / CURVES_FILE).is_file():
         return f"{name}-10m"  # trained under runs/10m/<run>, kept as train/runs/<run>-10m
     match = SHIPPED.fullmatch(name)

@@ -41,6 +41,7 @@ import numpy as np
 from flax import serialization
 
 from pe_mjx import outputs
+from pe_mjx.names import POLICY_NAME
 
 PACKED_FILE = "policy.msgpack"
 FORMAT = "pe-mjx-policy"
@@ -88,7 +89,7 @@ def write(
     else:
         owner = Path(parameters_of)
         beside = owner.resolve().parent == dest.resolve().parent and owner.name != dest.name
-        if not (beside and _SIBLING.fullmatch(owner.name)):
+        if not (beside and re.fullmatch(POLICY_NAME, owner.name)):
             raise ValueError(f"{owner} is not a packed policy beside {dest}")
         data = _read_capped(owner / PACKED_FILE)
         _parse(data, owner / PACKED_FILE, versions=(VERSION,))  # holds its own parameters
@@ -145,16 +146,12 @@ def read(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
     return meta, _parse(data, owner_file, versions=(VERSION,))["policies"]
 
 
-_SIBLING = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
-"""A sibling directory's name: no separators, so a shared file can only name its neighbours."""
-
-
 def _shared(state: dict[str, Any], path: Path) -> tuple[Path, str]:
     """(the owner's file, its recorded digest) of a version 2 file at `path`."""
     shared = state.get("parameters_of")
     name = shared.get("policy") if isinstance(shared, dict) else None
     digest = shared.get("sha256") if isinstance(shared, dict) else None
-    if not (isinstance(name, str) and _SIBLING.fullmatch(name) and isinstance(digest, str)):
+    if not (isinstance(name, str) and re.fullmatch(POLICY_NAME, name) and isinstance(digest, str)):
         raise PackedPolicyError(f"{path} shares parameters but does not say whose")
     return path.parent.parent / name / PACKED_FILE, digest
 

@@ -34,7 +34,7 @@ from typing import Any
 
 from pe_mjx import outputs
 from pe_mjx.experiment import NetworkConfig
-from pe_mjx.names import BUILTIN_POLICIES
+from pe_mjx.names import BUILTIN_POLICIES, POLICY_NAME
 from pe_mjx.policy import packed, store
 from pe_mjx.policy.shipped import policies_dir, resolve_run
 
@@ -69,16 +69,21 @@ def ship_policy(
     source = resolve_run(run)
     config = _read_config(source / "config.json")
     packed_meta = {k: v for k, v in meta.items()}
-    shared = None
-    if changes and packed.is_packed(source):
-        holder = packed.owner(source)
-        if holder.resolve().parent == target.parent.resolve() and holder.name != name:
-            shared = holder
+    # A derived copy beside its packed source shares the parameters' file (its owner is the
+    # source or the source's own owner, always in the source's directory).
+    beside = source.resolve().parent == target.parent.resolve()
+    shared = packed.owner(source) if changes and beside and packed.is_packed(source) else None
+    if shared is not None and shared.name == name:  # replacing its own owner: a whole copy
+        shared = None
     if changes:
         before = copy.deepcopy(meta["network_configs"])
         _set_network(packed_meta, changes)
         _set_network(config, changes)
-        config["derived_from"] = {"run": f"{run} step {step}", "network_configs": before, **changes}
+        config["derived_from"] = {
+            "run": f"{run}{_STEP}{step}",
+            "network_configs": before,
+            **changes,
+        }
     # Built in a temporary beside the target, then one rename: a failure or Ctrl-C midway
     # leaves the target as it was (`pe_mjx.outputs`).
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -103,14 +108,22 @@ def ship_policy(
     return target, meta
 
 
-_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+_STEP = " step "
+"""Between the source and its step in `derived_from.run` ("train/runs/x step 1465")."""
+
+
+def derived_source(config: dict[str, Any]) -> str | None:
+    """The run or policy a shipped copy's `config.json` (as a dict) was derived from with
+    --nearest-k or --length-unit, as it was named when shipped; None for any other config."""
+    derived = config.get("derived_from")
+    return derived["run"].rsplit(_STEP, 1)[0] if isinstance(derived, dict) else None
 
 
 def check_name(name: str) -> None:
     """A name that `--pursuers NAME` can give back: letters, digits, `.`, `_` and `-` (a newline
     or a lone space made a directory that nothing could name), not a builtin policy's (a
     shipped "scripted" was never played: the builtin wins)."""
-    if not _NAME.fullmatch(name):
+    if not re.fullmatch(POLICY_NAME, name):
         raise ValueError(
             f"NAME: bad name {name!r} (a plain name such as mix-20-5-8: letters, digits, '.', "
             "'_' and '-', at most 100)"

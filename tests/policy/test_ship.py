@@ -15,7 +15,7 @@ import pytest
 import pe_mjx
 from pe_mjx.policy.inference import in_length_unit, normalize_obs
 from pe_mjx.policy.resolve import resolve_policy
-from pe_mjx.policy.ship import ship_policy
+from pe_mjx.policy.ship import derived_source, ship_policy
 from pe_mjx.policy.store import read_meta
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -41,6 +41,7 @@ def test_nearest_k_is_written_everywhere_and_the_source_recorded(derived):
     assert config["experiment"]["evader"]["network"]["nearest_k"] == 3
     assert config["derived_from"]["network_configs"]["pursuer"]["nearest_k"] is None
     assert str(FULL) in config["derived_from"]["run"]
+    assert derived_source(config) == str(FULL) and derived_source({"seed": 0}) is None
 
 
 def test_a_bad_k_is_one_clear_error(tmp_path):
